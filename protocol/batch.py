@@ -16,6 +16,8 @@ from protocol.layout import DEFAULT_BASE, FRAME_DLC, SPEED_REF_ID, FrameKind, Ou
 
 @dataclass(frozen=True, slots=True)
 class DecodedBatch:
+    can_id: np.ndarray  # int64 arbitration id, as received
+    dlc: np.ndarray  # uint8 data length, as received
     kind: np.ndarray  # uint8 FrameKind, by id
     channel: np.ndarray  # uint8 1..3 for ADC frames, else 0
     outcome: np.ndarray  # uint8 Outcome
@@ -66,6 +68,8 @@ def decode_batch(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
     u32 = d.astype(np.uint32)
     speed = (u32[:, 1] | (u32[:, 2] << 8) | (u32[:, 3] << 16) | (u32[:, 4] << 24)).view(np.int32)
     return DecodedBatch(
+        can_id=ids,
+        dlc=frames["dlc"].copy(),
         kind=kind,
         channel=channel,
         outcome=outcome,

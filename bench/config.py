@@ -1,0 +1,166 @@
+"""The calibration config (TOML): board id, as-built channel angles and scales, fusion settings.
+
+Every key is optional; defaults are the ICD's nominal values. Validation is strict and
+each failure is one line naming the file and key, because a silently ignored typo in an
+angle would make every result on the bench wrong.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.errors import ConfigError
+from protocol.layout import DEFAULT_BASE, DEFAULT_SAMPLE_RATE_HZ, G0, NOMINAL_ANGLES_DEG, NOMINAL_SCALE
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelCal:
+    angle_deg: float
+    scale: float = NOMINAL_SCALE  # m/s^2 per LSB
+    offset: float = 0.0  # LSB
+
+
+@dataclass(frozen=True, slots=True)
+class EstimatorSettings:
+    """Settings of the bench's own estimator (METHOD.md section 5)."""
+
+    residual_limit_mps2: float = 0.05  # a channel singled out beyond this is excluded
+    stuck_window_s: float = 0.5  # no code change for this long while others change
+    recover_s: float = 1.0  # healthy for this long before an excluded channel is readmitted
+    standstill_s: float = 1.0  # SPEED_REF at 0 for this long -> a_ref exactly 0
+    coast_s: float = 0.5  # a_ref held this long after SPEED_REF stops, then unavailable
+    speed_noise_mps: float = 0.005  # Kalman measurement noise (odometer speed)
+    jerk_psd: float = 0.5  # Kalman process noise, (m/s^3)^2/Hz
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    base_id: int = DEFAULT_BASE
+    sample_rate_hz: int = DEFAULT_SAMPLE_RATE_HZ  # until the board's status frame says otherwise
+    channels: tuple[ChannelCal, ChannelCal, ChannelCal] = tuple(  # type: ignore[assignment]
+        ChannelCal(a) for a in NOMINAL_ANGLES_DEG
+    )
+    g: float = G0
+    tolerance_permil: float = 1.0
+    estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
+    source: str = "<defaults>"
+
+    @property
+    def angles_rad(self) -> tuple[float, float, float]:
+        return tuple(math.radians(c.angle_deg) for c in self.channels)  # type: ignore[return-value]
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["channels"] = [asdict(c) for c in self.channels]
+        return d
+
+    def to_toml(self) -> str:
+        """The config as TOML that :func:`load_config` reads back to an equal Config."""
+        lines = ["[board]", f"base_id = 0x{self.base_id:X}", f"sample_rate_hz = {self.sample_rate_hz}", ""]
+        for c in self.channels:
+            lines += [
+                "[[channels]]",
+                f"angle_deg = {c.angle_deg!r}",
+                f"scale = {c.scale!r}",
+                f"offset = {c.offset!r}",
+                "",
+            ]
+        lines += ["[fusion]", f"g = {self.g!r}", f"tolerance_permil = {self.tolerance_permil!r}", ""]
+        lines.append("[estimator]")
+        lines += [f"{k} = {v!r}" for k, v in asdict(self.estimator).items()]
+        return "\n".join(lines) + "\n"
+
+
+_NUM = (int, float)
+
+
+def _number(where: str, value: Any, *, positive: bool = False, integer: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int if integer else _NUM):
+        kind = "an integer" if integer else "a number"
+        raise ConfigError(f"{where}: expected {kind}, got {value!r}")
+    if not math.isfinite(value):
+        raise ConfigError(f"{where}: must be finite, got {value!r}")
+    if positive and value <= 0:
+        raise ConfigError(f"{where}: must be > 0, got {value!r}")
+    return value
+
+
+def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        raise ConfigError(f"{where}.{unknown[0]}: unknown key (expected one of {', '.join(sorted(allowed))})")
+    return value
+
+
+def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
+    """Validate a parsed TOML document into a Config. Raises ConfigError naming the key."""
+    _table(source, data, {"board", "channels", "fusion", "estimator"})
+    board = _table(f"{source}: board", data.get("board", {}), {"base_id", "sample_rate_hz"})
+    base_id = int(_number(f"{source}: board.base_id", board.get("base_id", DEFAULT_BASE), integer=True))
+    if not 0 <= base_id <= 0x7FC or base_id <= 0x180 < base_id + 4:
+        raise ConfigError(f"{source}: board.base_id: 0x{base_id:X} is not a usable 11-bit base")
+    rate = int(
+        _number(
+            f"{source}: board.sample_rate_hz",
+            board.get("sample_rate_hz", DEFAULT_SAMPLE_RATE_HZ),
+            positive=True,
+            integer=True,
+        )
+    )
+    chans = data.get("channels", [])
+    if not isinstance(chans, list) or len(chans) not in (0, 3):
+        raise ConfigError(f"{source}: channels: expected exactly three [[channels]] tables (ch1..ch3)")
+    cals = []
+    for i, default_angle in enumerate(NOMINAL_ANGLES_DEG):
+        ch = _table(f"{source}: channels[{i + 1}]", chans[i] if chans else {}, {"angle_deg", "scale", "offset"})
+        where = f"{source}: channels[{i + 1}]"
+        angle = _number(f"{where}.angle_deg", ch.get("angle_deg", default_angle))
+        if not -90.0 < angle < 90.0:
+            raise ConfigError(f"{where}.angle_deg: must lie in (-90, 90) deg, got {angle!r}")
+        scale = _number(f"{where}.scale", ch.get("scale", NOMINAL_SCALE), positive=True)
+        offset = _number(f"{where}.offset", ch.get("offset", 0.0))
+        cals.append(ChannelCal(float(angle), float(scale), float(offset)))
+    angles = [c.angle_deg for c in cals]
+    if len(set(angles)) < 3:
+        raise ConfigError(f"{source}: channels: the three angle_deg values must differ, got {angles}")
+    fusion = _table(f"{source}: fusion", data.get("fusion", {}), {"g", "tolerance_permil"})
+    g = _number(f"{source}: fusion.g", fusion.get("g", G0), positive=True)
+    tol = _number(f"{source}: fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0))
+    if tol < 0:
+        raise ConfigError(f"{source}: fusion.tolerance_permil: must be >= 0, got {tol!r}")
+    est_defaults = asdict(EstimatorSettings())
+    est = _table(f"{source}: estimator", data.get("estimator", {}), set(est_defaults))
+    est_values = {
+        k: float(_number(f"{source}: estimator.{k}", est.get(k, v), positive=True)) for k, v in est_defaults.items()
+    }
+    return Config(
+        base_id=base_id,
+        sample_rate_hz=rate,
+        channels=tuple(cals),  # type: ignore[arg-type]
+        g=float(g),
+        tolerance_permil=float(tol),
+        estimator=EstimatorSettings(**est_values),
+        source=source,
+    )
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Read a config file; None gives the nominal defaults."""
+    if path is None:
+        return Config()
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read config: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    return config_from_dict(data, source=p.name)

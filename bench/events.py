@@ -1,0 +1,113 @@
+"""Typed events: everything the bench notices that is not a result (faults, link errors, marks).
+
+Events travel as a numpy structured array so a log with a million CRC errors costs no
+Python objects; :func:`describe` renders one for people (TUI, MCAP log messages).
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+
+class EventKind(IntEnum):
+    CRC_ERROR = 1  # channel = ADC channel or 0; value = frame id
+    WRONG_DLC = 2  # value = dlc
+    UNKNOWN_ID = 3  # value = frame id
+    DUPLICATE = 4  # channel, n
+    LATE = 5  # channel, n: arrived after its sample was closed
+    GAP = 6  # channel, n: sample closed without that channel
+    SAMPLES_LOST = 7  # n = first missing sample, value = how many
+    COUNTER_JUMP = 8  # channel, n; value = jump size (counter vs board timestamp)
+    STATUS_FLAG = 9  # channel, n; value = status byte
+    LINK_ERROR = 10  # value = protocol.layout.Outcome of the UART packet
+    PARSE_ERROR = 11  # a log line or record that could not be read
+    DISCONNECT = 12
+    RECONNECT = 13
+    MARK = 14  # operator mark
+    VOTE_FAIL = 15  # n; value = bitmask of failed votes (1=v1, 2=v2, 4=v3) when any fails
+    INVALID = 16  # n: all three votes failed, no reference gradient
+    EXCLUDED = 17  # channel, n: the estimator excluded a channel; value = reason code
+    READMITTED = 18  # channel, n: the estimator readmitted it
+    BOARD_STATE = 19  # value = new board state
+    LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
+    DROPPED = 21  # value = frames dropped by a full queue
+
+
+EVENT_DTYPE = np.dtype(
+    [("t", "<f8"), ("kind", "u1"), ("channel", "u1"), ("n", "<i8"), ("value", "<i8")]
+)
+
+SEVERITY = {
+    EventKind.MARK: "info",
+    EventKind.RECONNECT: "info",
+    EventKind.READMITTED: "info",
+    EventKind.BOARD_STATE: "info",
+    EventKind.DUPLICATE: "warning",
+    EventKind.LATE: "warning",
+    EventKind.GAP: "warning",
+    EventKind.VOTE_FAIL: "warning",
+    EventKind.STATUS_FLAG: "warning",
+    EventKind.UNKNOWN_ID: "info",
+}
+
+
+def make_events(
+    kind: EventKind | int,
+    t: np.ndarray | float,
+    channel: np.ndarray | int = 0,
+    n: np.ndarray | int = -1,
+    value: np.ndarray | int = 0,
+) -> np.ndarray:
+    """Events of one kind, broadcast over the array arguments."""
+    t_arr, ch, nn, val = np.broadcast_arrays(
+        np.asarray(t, dtype=np.float64), np.asarray(channel), np.asarray(n), np.asarray(value)
+    )
+    out = np.zeros(t_arr.shape, dtype=EVENT_DTYPE).ravel()
+    out["t"] = t_arr.ravel()
+    out["kind"] = int(kind)
+    out["channel"] = ch.ravel()
+    out["n"] = nn.ravel()
+    out["value"] = val.ravel()
+    return out
+
+
+def concat_events(parts: list[np.ndarray]) -> np.ndarray:
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return np.zeros(0, dtype=EVENT_DTYPE)
+    out = np.concatenate(parts)
+    return out[np.argsort(out["t"], kind="stable")] if len(parts) > 1 else out
+
+
+def severity(kind: int) -> str:
+    return SEVERITY.get(EventKind(kind), "error")
+
+
+def describe(ev: np.void | np.ndarray) -> str:
+    """One line for a person: 'GAP ch3 sample 1234'."""
+    kind = EventKind(int(ev["kind"]))
+    ch = int(ev["channel"])
+    n = int(ev["n"])
+    value = int(ev["value"])
+    parts = [kind.name]
+    if ch:
+        parts.append(f"ch{ch}")
+    if n >= 0:
+        parts.append(f"sample {n}")
+    if kind in (EventKind.CRC_ERROR, EventKind.UNKNOWN_ID):
+        parts.append(f"id 0x{value:03X}")
+    elif kind is EventKind.STATUS_FLAG:
+        from protocol.layout import status_names
+
+        parts.append("status " + "|".join(status_names(value)))
+    elif kind is EventKind.VOTE_FAIL:
+        parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
+    elif kind is EventKind.LINK_ERROR:
+        from protocol.layout import Outcome
+
+        parts.append(Outcome(value).name if value in Outcome._value2member_map_ else str(value))
+    elif value:
+        parts.append(f"value {value}")
+    return " ".join(parts)
