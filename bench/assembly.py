@@ -56,7 +56,9 @@ class Assembler:
     def __init__(self, sample_rate_hz: float) -> None:
         self.period_ticks = 1.0 / (sample_rate_hz * TICK_S)
         self.rate_known = False  # set once a BOARD_STATUS frame has told us the rate
-        self._chain: tuple[float, int, int, int, int] | None = None  # t, ts, T, c, n of last ADC frame
+        self._chain: tuple[float, int, int, int, int] | None = (
+            None  # t, ts, T, c, n of last ADC frame
+        )
         self.max_n = _NONE
         self.last_emitted: int | None = None
         self._last_row_n: int | None = None
@@ -87,7 +89,9 @@ class Assembler:
         return rows["n"][nn] * 4 + ch + 1
 
     # -- main entry ----------------------------------------------------------------------
-    def push(self, t: np.ndarray, dec: DecodedBatch, seq0: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def push(
+        self, t: np.ndarray, dec: DecodedBatch, seq0: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
 
         Returns (emitted samples, events)."""
@@ -122,7 +126,9 @@ class Assembler:
 
         jump = (dc != 0) & known
         if jump.any():
-            events.append(make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], dc[jump]))
+            events.append(
+                make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], dc[jump])
+            )
 
         # membership: late, duplicate, accepted
         running = np.maximum.accumulate(np.maximum(n, self.max_n))
@@ -141,9 +147,15 @@ class Assembler:
         status = dec.status[adc]
         flagged = acc & ((status & STATUS_FAULT_MASK) != 0)
         if flagged.any():
-            events.append(make_events(EventKind.STATUS_FLAG, tt[flagged], ch[flagged], n[flagged], status[flagged]))
+            events.append(
+                make_events(
+                    EventKind.STATUS_FLAG, tt[flagged], ch[flagged], n[flagged], status[flagged]
+                )
+            )
 
-        self._merge(n[acc], ch[acc], dec.code[adc][acc], status[acc], big_t[acc], tt[acc], seq0 + adc[acc])
+        self._merge(
+            n[acc], ch[acc], dec.code[adc][acc], status[acc], big_t[acc], tt[acc], seq0 + adc[acc]
+        )
         self.max_n = int(running[-1])
         out = self._emit()
         events.append(self._gap_events(out))
@@ -170,7 +182,7 @@ class Assembler:
                 parts.append(make_events(kind, t[idx], dec.channel[idx], -1, value[idx]))
         return concat_events(parts)
 
-    def _merge(self, n, ch, code, status, big_t, tt, seq) -> None:  # noqa: ANN001 - arrays
+    def _merge(self, n, ch, code, status, big_t, tt, seq) -> None:
         if len(n) == 0:
             return
         uniq = np.union1d(self._open["n"], n)
@@ -215,13 +227,19 @@ class Assembler:
         missing_row, missing_ch = np.nonzero(~out["present"])
         if len(missing_row):
             parts.append(
-                make_events(EventKind.GAP, out["t"][missing_row], missing_ch + 1, out["n"][missing_row])
+                make_events(
+                    EventKind.GAP, out["t"][missing_row], missing_ch + 1, out["n"][missing_row]
+                )
             )
         n = out["n"]
-        prev = np.concatenate(([n[0] - 1 if self._last_row_n is None else self._last_row_n], n[:-1]))
+        prev = np.concatenate(
+            ([n[0] - 1 if self._last_row_n is None else self._last_row_n], n[:-1])
+        )
         lost = n - prev - 1
         idx = np.flatnonzero(lost > 0)
         if len(idx):
-            parts.append(make_events(EventKind.SAMPLES_LOST, out["t"][idx], 0, prev[idx] + 1, lost[idx]))
+            parts.append(
+                make_events(EventKind.SAMPLES_LOST, out["t"][idx], 0, prev[idx] + 1, lost[idx])
+            )
         self._last_row_n = int(n[-1])
         return concat_events(parts)

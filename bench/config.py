@@ -14,7 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
-from protocol.layout import DEFAULT_BASE, DEFAULT_SAMPLE_RATE_HZ, G0, NOMINAL_ANGLES_DEG, NOMINAL_SCALE
+from protocol.layout import (
+    DEFAULT_BASE,
+    DEFAULT_SAMPLE_RATE_HZ,
+    G0,
+    NOMINAL_ANGLES_DEG,
+    NOMINAL_SCALE,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -48,6 +54,7 @@ class Config:
     tolerance_permil: float = 1.0
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     source: str = "<defaults>"
+    path: str | None = None  # the file it was read from
 
     @property
     def angles_rad(self) -> tuple[float, float, float]:
@@ -60,7 +67,12 @@ class Config:
 
     def to_toml(self) -> str:
         """The config as TOML that :func:`load_config` reads back to an equal Config."""
-        lines = ["[board]", f"base_id = 0x{self.base_id:X}", f"sample_rate_hz = {self.sample_rate_hz}", ""]
+        lines = [
+            "[board]",
+            f"base_id = 0x{self.base_id:X}",
+            f"sample_rate_hz = {self.sample_rate_hz}",
+            "",
+        ]
         for c in self.channels:
             lines += [
                 "[[channels]]",
@@ -69,7 +81,12 @@ class Config:
                 f"offset = {c.offset!r}",
                 "",
             ]
-        lines += ["[fusion]", f"g = {self.g!r}", f"tolerance_permil = {self.tolerance_permil!r}", ""]
+        lines += [
+            "[fusion]",
+            f"g = {self.g!r}",
+            f"tolerance_permil = {self.tolerance_permil!r}",
+            "",
+        ]
         lines.append("[estimator]")
         lines += [f"{k} = {v!r}" for k, v in asdict(self.estimator).items()]
         return "\n".join(lines) + "\n"
@@ -94,15 +111,21 @@ def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
         raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
     unknown = sorted(set(value) - allowed)
     if unknown:
-        raise ConfigError(f"{where}.{unknown[0]}: unknown key (expected one of {', '.join(sorted(allowed))})")
+        raise ConfigError(
+            f"{where}.{unknown[0]}: unknown key (expected one of {', '.join(sorted(allowed))})"
+        )
     return value
 
 
-def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
+def config_from_dict(
+    data: dict[str, Any], source: str = "<dict>", path: str | None = None
+) -> Config:
     """Validate a parsed TOML document into a Config. Raises ConfigError naming the key."""
     _table(source, data, {"board", "channels", "fusion", "estimator"})
     board = _table(f"{source}: board", data.get("board", {}), {"base_id", "sample_rate_hz"})
-    base_id = int(_number(f"{source}: board.base_id", board.get("base_id", DEFAULT_BASE), integer=True))
+    base_id = int(
+        _number(f"{source}: board.base_id", board.get("base_id", DEFAULT_BASE), integer=True)
+    )
     if not 0 <= base_id <= 0x7FC or base_id <= 0x180 < base_id + 4:
         raise ConfigError(f"{source}: board.base_id: 0x{base_id:X} is not a usable 11-bit base")
     rate = int(
@@ -115,10 +138,16 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
     )
     chans = data.get("channels", [])
     if not isinstance(chans, list) or len(chans) not in (0, 3):
-        raise ConfigError(f"{source}: channels: expected exactly three [[channels]] tables (ch1..ch3)")
+        raise ConfigError(
+            f"{source}: channels: expected exactly three [[channels]] tables (ch1..ch3)"
+        )
     cals = []
     for i, default_angle in enumerate(NOMINAL_ANGLES_DEG):
-        ch = _table(f"{source}: channels[{i + 1}]", chans[i] if chans else {}, {"angle_deg", "scale", "offset"})
+        ch = _table(
+            f"{source}: channels[{i + 1}]",
+            chans[i] if chans else {},
+            {"angle_deg", "scale", "offset"},
+        )
         where = f"{source}: channels[{i + 1}]"
         angle = _number(f"{where}.angle_deg", ch.get("angle_deg", default_angle))
         if not -90.0 < angle < 90.0:
@@ -128,7 +157,9 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
         cals.append(ChannelCal(float(angle), float(scale), float(offset)))
     angles = [c.angle_deg for c in cals]
     if len(set(angles)) < 3:
-        raise ConfigError(f"{source}: channels: the three angle_deg values must differ, got {angles}")
+        raise ConfigError(
+            f"{source}: channels: the three angle_deg values must differ, got {angles}"
+        )
     fusion = _table(f"{source}: fusion", data.get("fusion", {}), {"g", "tolerance_permil"})
     g = _number(f"{source}: fusion.g", fusion.get("g", G0), positive=True)
     tol = _number(f"{source}: fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0))
@@ -137,7 +168,8 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
     est_defaults = asdict(EstimatorSettings())
     est = _table(f"{source}: estimator", data.get("estimator", {}), set(est_defaults))
     est_values = {
-        k: float(_number(f"{source}: estimator.{k}", est.get(k, v), positive=True)) for k, v in est_defaults.items()
+        k: float(_number(f"{source}: estimator.{k}", est.get(k, v), positive=True))
+        for k, v in est_defaults.items()
     }
     return Config(
         base_id=base_id,
@@ -147,6 +179,7 @@ def config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Config:
         tolerance_permil=float(tol),
         estimator=EstimatorSettings(**est_values),
         source=source,
+        path=path,
     )
 
 
@@ -163,4 +196,4 @@ def load_config(path: str | Path | None) -> Config:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    return config_from_dict(data, source=p.name)
+    return config_from_dict(data, source=p.name, path=str(p))

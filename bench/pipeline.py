@@ -16,7 +16,7 @@ from bench.config import Config
 from bench.events import EVENT_DTYPE, EventKind, concat_events, make_events
 from bench.fusion.estimator import Estimator
 from bench.fusion.reference import fuse
-from bench.records import STATUS_DTYPE, SPEED_DTYPE, speed_records, status_records
+from bench.records import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.results import RESULT_DTYPE
 from bench.stats import Stats
 from devices.base import SourceBatch
@@ -75,7 +75,9 @@ class Pipeline:
 
     def finish(self) -> StepOutput:
         samples, events = self.assembler.finish()
-        return self._fuse(samples, events, empty_frames(), decode_batch(empty_frames()), self.seq, None)
+        return self._fuse(
+            samples, events, empty_frames(), decode_batch(empty_frames()), self.seq, None
+        )
 
     # -- internals -------------------------------------------------------------------------
     def _fuse(
@@ -104,13 +106,17 @@ class Pipeline:
         self.stats.count_events(all_events)
         self.stats.count_results(results)
         self._count_channel_frames(frames, dec)
-        return StepOutput(frames, dec.outcome, seq0, samples, results, all_events, status, speed, batch)
+        return StepOutput(
+            frames, dec.outcome, seq0, samples, results, all_events, status, speed, batch
+        )
 
     def compute(self, samples: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fusion of emitted samples: reference method + estimator."""
         res = np.zeros(len(samples), dtype=RESULT_DTYPE)
         if len(samples) == 0:
-            est, est_events = self.estimator.push(samples, np.zeros((0, 3)), np.zeros((0, 3), bool), speed)
+            est, est_events = self.estimator.push(
+                samples, np.zeros((0, 3)), np.zeros((0, 3), bool), speed
+            )
             return res, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
@@ -138,9 +144,13 @@ class Pipeline:
         prev = np.concatenate(([self._last_fail_mask], mask[:-1]))
         self._last_fail_mask = int(mask[-1])
         change = (mask != prev) & (mask != 0)
-        parts = [make_events(EventKind.VOTE_FAIL, res["t"][change], 0, res["n"][change], mask[change])]
+        parts = [
+            make_events(EventKind.VOTE_FAIL, res["t"][change], 0, res["n"][change], mask[change])
+        ]
         into_invalid = change & (mask == 7)
-        parts.append(make_events(EventKind.INVALID, res["t"][into_invalid], 0, res["n"][into_invalid]))
+        parts.append(
+            make_events(EventKind.INVALID, res["t"][into_invalid], 0, res["n"][into_invalid])
+        )
         return concat_events(parts)
 
     def _state_events(self, status: np.ndarray) -> np.ndarray:

@@ -36,10 +36,29 @@ RESULT_DTYPE = np.dtype(
     ]
 )
 
-CSV_COLUMNS = (
-    "time_s,counter,a1,a2,a3,g12,g23,g13,v1,v2,v3,w12,w23,w13,gradient,valid,"
-    "gradient_signed,a_ref,residual,degraded,excluded"
-).split(",")
+CSV_COLUMNS = [
+    "time_s",
+    "counter",
+    "a1",
+    "a2",
+    "a3",
+    "g12",
+    "g23",
+    "g13",
+    "v1",
+    "v2",
+    "v3",
+    "w12",
+    "w23",
+    "w13",
+    "gradient",
+    "valid",
+    "gradient_signed",
+    "a_ref",
+    "residual",
+    "degraded",
+    "excluded",
+]
 
 
 def _fmt(values: np.ndarray) -> list[str]:

@@ -41,7 +41,9 @@ class Stats:
     samples: int = 0
     valid: int = 0
     degraded: int = 0
-    vote_failures: list[int] = field(default_factory=lambda: [0, 0, 0])  # samples failing v1, v2, v3
+    vote_failures: list[int] = field(
+        default_factory=lambda: [0, 0, 0]
+    )  # samples failing v1, v2, v3
     samples_lost: int = 0
     status_frames: int = 0
     speed_frames: int = 0
@@ -57,7 +59,9 @@ class Stats:
         if len(events) == 0:
             return
         kinds = events["kind"]
-        self.events.update(dict(zip(*(a.tolist() for a in np.unique(kinds, return_counts=True)), strict=True)))
+        self.events.update(
+            dict(zip(*(a.tolist() for a in np.unique(kinds, return_counts=True)), strict=True))
+        )
         per_channel = {
             EventKind.CRC_ERROR: "crc_errors",
             EventKind.GAP: "gaps",
@@ -71,7 +75,11 @@ class Stats:
             if len(sel):
                 counts = np.bincount(sel, minlength=4)
                 for ch in range(3):
-                    setattr(self.channels[ch], attr, getattr(self.channels[ch], attr) + int(counts[ch + 1]))
+                    setattr(
+                        self.channels[ch],
+                        attr,
+                        getattr(self.channels[ch], attr) + int(counts[ch + 1]),
+                    )
         self.crc_errors += int(np.count_nonzero(kinds == EventKind.CRC_ERROR))
         self.wrong_dlc += int(np.count_nonzero(kinds == EventKind.WRONG_DLC))
         self.unknown_id += int(np.count_nonzero(kinds == EventKind.UNKNOWN_ID))
@@ -103,6 +111,7 @@ class Stats:
             "vote_failures": list(self.vote_failures),
             "samples_lost": self.samples_lost,
             "channels": [
-                {k: v for k, v in vars(c).items() if k not in ("first_t", "last_t")} for c in self.channels
+                {k: v for k, v in vars(c).items() if k not in ("first_t", "last_t")}
+                for c in self.channels
             ],
         }

@@ -53,7 +53,7 @@ def decode_batch(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
     kind[is_adc] = FrameKind.ADC
     kind[is_status] = FrameKind.STATUS
     kind[is_speed] = FrameKind.SPEED
-    channel = np.where(is_adc, offset, 0).astype(np.uint8)
+    channel = np.where(is_adc & ~is_speed, offset, 0).astype(np.uint8)
 
     outcome = np.full(n, Outcome.OK, dtype=np.uint8)
     crc_ok = frame_crc8_batch(ids, d) == d[:, 7]

@@ -45,6 +45,8 @@ def frames_from_raw(frames: Iterable[RawFrame]) -> np.ndarray:
 def raw_from_frames(frames: np.ndarray) -> list[RawFrame]:
     """Unpack a FRAME_DTYPE array into RawFrames (the inverse of frames_from_raw for dlc <= 8)."""
     return [
-        RawFrame(float(r["t"]), int(r["id"]), bytes(r["data"][: min(int(r["dlc"]), 8)]), int(r["flags"]))
+        RawFrame(
+            float(r["t"]), int(r["id"]), bytes(r["data"][: min(int(r["dlc"]), 8)]), int(r["flags"])
+        )
         for r in frames
     ]

@@ -21,7 +21,12 @@ STATUS_REF = 0x04
 STATUS_CAL = 0x08
 STATUS_FAULT_MASK = 0x0F
 """Any of bits 0..3 set makes the channel untrustworthy for that sample."""
-STATUS_BIT_NAMES = {STATUS_OVR: "OVR", STATUS_SELFTEST: "SELFTEST", STATUS_REF: "REF", STATUS_CAL: "CAL"}
+STATUS_BIT_NAMES = {
+    STATUS_OVR: "OVR",
+    STATUS_SELFTEST: "SELFTEST",
+    STATUS_REF: "REF",
+    STATUS_CAL: "CAL",
+}
 
 CODE_MIN = -(1 << 23)
 CODE_MAX = (1 << 23) - 1

@@ -64,7 +64,9 @@ def weights(votes: np.ndarray) -> np.ndarray:
     return w
 
 
-def fuse(acc: np.ndarray, angles_rad: np.ndarray, g: float, tolerance_permil: float) -> ReferenceResult:
+def fuse(
+    acc: np.ndarray, angles_rad: np.ndarray, g: float, tolerance_permil: float
+) -> ReferenceResult:
     """The whole reference method over a batch of samples."""
     slopes = pair_gradients(acc, angles_rad, g)
     votes = vote(slopes, tolerance_permil)

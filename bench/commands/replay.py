@@ -1,0 +1,96 @@
+"""`bench replay INPUT`: re-run fusion over a recorded log, write the per-sample CSV."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    DownloadColumn,
+    Progress,
+    TimeRemainingColumn,
+    TransferSpeedColumn,
+)
+
+from bench.config import load_config
+from bench.errors import BenchError
+from bench.replay import CsvSink, replay
+from bench.summary import print_summary
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "replay",
+        help="re-run fusion over a log (.log .asc .blf .trc .csv .bin .mcap) and write a CSV",
+        description="Replay a log through the live pipeline; one CSV row per sample.",
+    )
+    p.add_argument(
+        "input", help="log file: .log (candump), .asc, .blf, .trc, .csv, .bin (UART), .mcap"
+    )
+    p.add_argument("--config", help="calibration config (TOML); default: the ICD's nominal values")
+    p.add_argument(
+        "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
+    )
+    p.add_argument(
+        "--compare",
+        action="store_true",
+        help="(MCAP input) report where the recomputed results differ from the recorded ones",
+    )
+    p.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from devices.files import open_log
+
+    config = load_config(args.config)
+    source = open_log(args.input)
+    sinks = []
+    if args.csv:
+        sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]
+    console = Console(stderr=True)
+    total = source.size_bytes()
+    show = not args.quiet and console.is_terminal and total > 2_000_000
+    collect = bool(args.compare)
+    try:
+        if show:
+            columns = (
+                *Progress.get_default_columns()[:1],
+                BarColumn(),
+                DownloadColumn(),
+                TransferSpeedColumn(),
+                TimeRemainingColumn(),
+            )
+            with Progress(*columns, console=console, transient=True) as progress:
+                task = progress.add_task(f"replay {args.input}", total=total)
+                outcome = replay(
+                    source,
+                    config,
+                    sinks,
+                    collect=collect,
+                    on_progress=lambda pos: progress.update(task, completed=pos),
+                )
+        else:
+            outcome = replay(source, config, sinks, collect=collect)
+    finally:
+        for sink in sinks:
+            sink.close()
+        source.close()
+    for notice in outcome.notices:
+        console.print(f"[yellow]warning:[/] {notice}")
+    if not args.quiet:
+        print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=console)
+    if args.compare:
+        if not str(args.input).lower().endswith(".mcap"):
+            raise BenchError(
+                "--compare needs an .mcap input (only MCAP logs hold recorded results)"
+            )
+        from bench.mcaplog.compare import compare_results, print_comparison
+        from bench.mcaplog.reader import read_results
+
+        report = compare_results(read_results(args.input), outcome.results)
+        print_comparison(report, console)
+        return 0 if report.identical else 1
+    return 0

@@ -1,0 +1,114 @@
+"""`bench run`: a headless live run with a one-line status, optional CSV, MCAP by default."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from types import FrameType
+
+from bench.config import load_config
+from bench.live import LiveRunner, Snapshot
+from bench.liveopts import add_live_arguments, open_live, open_recording
+from bench.replay import CsvSink
+from bench.summary import print_summary
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run",
+        help="live headless run: fuse frames as they arrive, log to MCAP",
+        description="Acquire from a bus, serial port or the in-process virtual board; fuse live; "
+        "print a status line; log every frame and result to MCAP.",
+    )
+    add_live_arguments(p)
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
+    p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
+    p.set_defaults(func=run)
+
+
+def status_line(s: Snapshot, elapsed: float) -> str:
+    st = s.stats
+    rate = s.frames_received / elapsed if elapsed > 0 else 0.0
+    grad = "  ---  "
+    if len(s.results):
+        g = float(s.results["gradient"][-1])
+        grad = f"{g:+7.2f}" if math.isfinite(g) else "invalid"
+    valid = 100.0 * st.valid / st.samples if st.samples else 0.0
+    gaps = sum(c.gaps for c in st.channels)
+    rec = ""
+    if s.recording:
+        rec = f" log {s.recording.get('frames', 0)}f"
+    return (
+        f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
+        f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
+        f"drop {s.frames_dropped}{rec}"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_config(args.config)
+    setup = open_live(args)
+    sinks = []
+    recording = open_recording(
+        args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
+    )
+    if recording is not None:
+        sinks.append(recording)
+        print(f"bench: logging to {recording.path}", file=sys.stderr)
+    if args.csv:
+        sinks.append(CsvSink(args.csv))
+    runner = LiveRunner(setup.source, config, sinks, description=setup.description)
+    runner.recording = recording
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    old = signal.signal(signal.SIGTERM, on_signal)
+    start = time.monotonic()
+    tty = sys.stderr.isatty()
+    last_print = 0.0
+    runner.start()
+    try:
+        while not stop.is_set():
+            time.sleep(0.1)
+            elapsed = time.monotonic() - start
+            if args.duration is not None and elapsed >= args.duration:
+                break
+            if setup.emulator is not None and setup.emulator.done:
+                time.sleep(0.2)  # let the last frames arrive
+                break
+            if not args.quiet and elapsed - last_print >= (0.5 if tty else 5.0):
+                last_print = elapsed
+                line = status_line(runner.snapshot(last=1), elapsed)
+                print(
+                    ("\r" + line) if tty else line,
+                    end="" if tty else "\n",
+                    file=sys.stderr,
+                    flush=True,
+                )
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        if setup.emulator is not None:
+            setup.emulator.stop()
+        runner.stop()
+        setup.close()
+    if tty and not args.quiet:
+        print(file=sys.stderr)
+    snap = runner.snapshot(last=1)
+    if not args.quiet:
+        print(status_line(snap, time.monotonic() - start), file=sys.stderr)
+        print_summary(runner.pipeline.stats, title=f"run on {setup.description}")
+        if recording is not None:
+            print(f"bench: log written: {recording.path}", file=sys.stderr)
+    if runner.error:
+        print(f"bench: error: {runner.error}", file=sys.stderr)
+        return 1
+    return 0

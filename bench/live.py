@@ -1,0 +1,240 @@
+"""The live run: acquisition thread -> bounded queue -> processing thread -> sinks and snapshot.
+
+The receive path never waits on the UI or the disk: the acquisition thread only reads the
+source and enqueues (counting what a full queue drops); the processing thread runs the
+pipeline and hands each step to the sinks, which queue their own I/O; the UI copies a
+:class:`Snapshot` at a few Hz.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.config import Config
+from bench.events import EventKind, describe, make_events
+from bench.pipeline import Pipeline, StepOutput
+from bench.results import RESULT_DTYPE
+from bench.sinks import Sink
+from bench.stats import Stats
+from devices.base import LiveSource, SourceBatch
+
+HISTORY = 60_000
+"""Results kept for the UI (5 min at 200 Hz, 1 min at 1 kHz)."""
+
+
+@dataclass
+class Snapshot:
+    """A consistent copy of the run's state for a UI; cheap enough to take at a few Hz."""
+
+    wall: float
+    source: str
+    running: bool
+    results: np.ndarray  # the last HISTORY results, oldest first
+    stats: Stats
+    events: list[tuple[float, int, str]]  # (receive time, EventKind, text), newest last
+    board: np.void | None
+    speed: np.void | None
+    frames_received: int
+    frames_dropped: int
+    queue_depth: int
+    queue_max: int
+    tolerance_permil: float
+    latency_ms: tuple[float, float]  # p50, p99 of frame-to-result latency over the recent window
+    recording: dict[str, Any] | None
+    error: str | None = None
+    marks: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class LiveRunner:
+    def __init__(
+        self,
+        source: LiveSource,
+        config: Config,
+        sinks: list[Sink] | None = None,
+        *,
+        description: str = "",
+        queue_batches: int = 4096,
+        read_timeout: float = 0.05,
+    ) -> None:
+        self.source = source
+        self.config = config
+        self.pipeline = Pipeline(config)
+        self.description = description or getattr(source, "description", "live source")
+        self._sinks: list[Sink] = list(sinks or [])
+        self._queue: queue.Queue[SourceBatch | None] = queue.Queue(maxsize=queue_batches)
+        self._read_timeout = read_timeout
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._ring = np.zeros(HISTORY, dtype=RESULT_DTYPE)
+        self._ring_len = 0
+        self._ring_pos = 0
+        self._events: deque[tuple[float, int, str]] = deque(maxlen=500)
+        self._latency: deque[float] = deque(maxlen=5000)
+        self.frames_received = 0
+        self.frames_dropped = 0
+        self.marks = 0
+        self.error: str | None = None
+        self.finished = threading.Event()
+        self.recording: Any = None  # the MCAP sink, when recording
+        self._acq = threading.Thread(target=self._acquire, name="acquisition", daemon=True)
+        self._proc = threading.Thread(target=self._process, name="processing", daemon=True)
+
+    # -- control ---------------------------------------------------------------------------
+    def start(self) -> LiveRunner:
+        self._acq.start()
+        self._proc.start()
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop acquisition, drain the queue through the pipeline, flush and close sinks."""
+        self._stop.set()
+        self._acq.join(timeout)
+        self._proc.join(timeout)
+        with contextlib.suppress(Exception):
+            self.source.close()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self.finished.wait(timeout)
+
+    def add_sink(self, sink: Sink) -> None:
+        with self._lock:
+            self._sinks.append(sink)
+
+    def remove_sink(self, sink: Sink) -> None:
+        with self._lock:
+            if sink in self._sinks:
+                self._sinks.remove(sink)
+
+    def set_tolerance(self, permil: float) -> None:
+        self.pipeline.tolerance_permil = max(0.0, float(permil))
+        self.mark(f"tolerance set to {self.pipeline.tolerance_permil:g} permil")
+
+    def mark(self, text: str = "operator mark") -> None:
+        t = time.time()
+        self.marks += 1
+        with self._lock:
+            self._events.append((t, int(EventKind.MARK), f"MARK {text}"))
+            sinks = list(self._sinks)
+        for sink in sinks:
+            sink.mark(t, text)
+
+    # -- threads ---------------------------------------------------------------------------
+    def _acquire(self) -> None:
+        try:
+            while not self._stop.is_set():
+                batch = self.source.read(self._read_timeout)
+                if not batch:
+                    continue
+                self.frames_received += len(batch.frames)
+                try:
+                    self._queue.put_nowait(batch)
+                except queue.Full:
+                    self.frames_dropped += len(batch.frames)
+        except Exception as exc:  # a source must not raise, but the run must survive one that does
+            self.error = f"acquisition stopped: {exc!r}"
+        finally:
+            self._queue.put(None)
+
+    def _process(self) -> None:
+        dropped_seen = 0
+        try:
+            while True:
+                batch = self._queue.get()
+                if batch is None:
+                    break
+                step = self.pipeline.process(batch)
+                if self.frames_dropped != dropped_seen:
+                    lost = self.frames_dropped - dropped_seen
+                    dropped_seen = self.frames_dropped
+                    step.events = np.concatenate(
+                        [step.events, make_events(EventKind.DROPPED, time.time(), 0, -1, lost)]
+                    )
+                self._deliver(step)
+            self._deliver(self.pipeline.finish())
+        except Exception as exc:
+            self.error = f"processing stopped: {exc!r}"
+            raise
+        finally:
+            with self._lock:
+                sinks = list(self._sinks)
+            for sink in sinks:
+                try:
+                    sink.close()
+                except Exception as exc:  # a failing sink must not hide the others
+                    self.error = f"closing {type(sink).__name__} failed: {exc!r}"
+            self.finished.set()
+
+    def _deliver(self, step: StepOutput) -> None:
+        now = time.time()
+        with self._lock:
+            sinks = list(self._sinks)
+        for sink in sinks:
+            sink.write(step)
+        res = step.results
+        with self._lock:
+            if len(res):
+                self._append(res)
+                lat = now - res["t"]
+                self._latency.extend(lat[np.isfinite(lat)].tolist())
+            for ev in step.events[-200:]:
+                self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
+
+    def _append(self, res: np.ndarray) -> None:
+        res = res[-HISTORY:]
+        k = len(res)
+        end = self._ring_pos + k
+        if end <= HISTORY:
+            self._ring[self._ring_pos : end] = res
+        else:
+            first = HISTORY - self._ring_pos
+            self._ring[self._ring_pos :] = res[:first]
+            self._ring[: k - first] = res[first:]
+        self._ring_pos = end % HISTORY
+        self._ring_len = min(HISTORY, self._ring_len + k)
+
+    # -- snapshot --------------------------------------------------------------------------
+    def snapshot(self, last: int = HISTORY) -> Snapshot:
+        with self._lock:
+            k = min(last, self._ring_len)
+            idx = (self._ring_pos - k + np.arange(k)) % HISTORY
+            results = self._ring[idx]
+            stats = copy.deepcopy(self.pipeline.stats)
+            events = list(self._events)
+            lat = np.array(self._latency) * 1000.0
+        rec = None
+        if self.recording is not None:
+            rec = getattr(self.recording, "status", lambda: None)()
+        p50, p99 = (
+            (float(np.percentile(lat, 50)), float(np.percentile(lat, 99)))
+            if len(lat)
+            else (np.nan, np.nan)
+        )
+        return Snapshot(
+            wall=time.time(),
+            source=self.description,
+            running=not self.finished.is_set(),
+            results=results,
+            stats=stats,
+            events=events,
+            board=self.pipeline.last_status,
+            speed=self.pipeline.last_speed,
+            frames_received=self.frames_received,
+            frames_dropped=self.frames_dropped,
+            queue_depth=self._queue.qsize(),
+            queue_max=self._queue.maxsize,
+            tolerance_permil=self.pipeline.tolerance_permil,
+            latency_ms=(p50, p99),
+            recording=rec,
+            error=self.error,
+            marks=self.marks,
+        )

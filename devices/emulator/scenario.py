@@ -1,0 +1,556 @@
+"""Scenario files (TOML) for the virtual board: parse, validate, default.
+
+A scenario describes one simulated run: the world (track, train, gravity), the board as
+built (angles, biases, noise, timing) and the faults to inject. Validation is strict and
+every failure is one :class:`ConfigError` line naming the file and the key, because a
+silently ignored typo would make a test run prove nothing.
+
+Indices in messages count from 1 in file order (``channels[1]`` is ch1), as in the
+calibration config. The annotated reference of every key is ``devices/scenarios/example.toml``.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from bench.errors import ConfigError
+from protocol.layout import (
+    DEFAULT_BASE,
+    DEFAULT_SAMPLE_RATE_HZ,
+    G0,
+    NOMINAL_ANGLES_DEG,
+    SPEED_REF_ID,
+    STATUS_BIT_NAMES,
+)
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+"""Built-in scenarios shipped with the package (``devices/scenarios/*.toml``)."""
+
+MAX_DURATION_S = 3600.0
+CAN_TARGETS = ("adc", "status", "speed", "bus")
+"""Named fault targets besides the channel numbers 1..3 (and "uart" for UART faults)."""
+
+# kind -> (allowed targets, {param: default}); None default = optional without default.
+SIGNAL_KINDS = ("stuck", "drift", "spike", "saturate", "status")
+FRAME_KINDS = ("dropout", "crc", "loss", "duplicate", "reorder", "counter_jump")
+UART_KINDS = ("noise", "truncation")
+FAULT_KINDS = SIGNAL_KINDS + FRAME_KINDS + UART_KINDS
+FAULT_PARAMS: dict[str, dict[str, Any]] = {
+    "dropout": {},
+    "stuck": {"code": None},
+    "drift": {"rate_mps2_per_s": 0.01, "offset_mps2": 0.0},
+    "spike": {"amplitude_mps2": 5.0, "rate_hz": 1.0, "width_samples": 1},
+    "saturate": {"value_mps2": 25.0},
+    "status": {"bits": 0x02},
+    "crc": {"probability": 1.0},
+    "loss": {"probability": 0.1},
+    "duplicate": {"probability": 0.1},
+    "reorder": {"probability": 0.1, "depth": 1},
+    "counter_jump": {"jump": 17},
+    "noise": {"probability": 0.01, "burst_bytes": 4},
+    "truncation": {"probability": 0.01},
+}
+_COMMON_FAULT_KEYS = ("channel", "kind", "start_s", "end_s")
+
+
+@dataclass(frozen=True, slots=True)
+class TrackSegment:
+    length_m: float
+    gradient_permil: float
+    vertical_curve_m: float | None = None  # transition INTO this segment; None = scenario default
+
+
+@dataclass(frozen=True, slots=True)
+class TrainPhase:
+    duration_s: float
+    accel_mps2: float
+    allow_reverse: bool = False  # may this phase take the speed through zero?
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelModel:
+    """One as-built sensor: what it really is, not what the calibration sheet says."""
+
+    angle_deg: float
+    bias_mps2: float = 0.0
+    scale_error: float = 0.0  # relative: measured = true * (1 + scale_error)
+    noise_mps2: float = 0.0  # white noise standard deviation
+    vibration_mps2: float = 0.0  # sine amplitude along the sensitive axis
+    vibration_hz: float = 0.0
+    vibration_phase_deg: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class BoardModel:
+    temperature_c: int = 35
+    supply_v: float = 24.0
+    errors0: int = 0
+    status_counter0: int = 0
+    latency_us: int = 100  # sampling instant -> frames queued for the bus
+    frame_gap_us: int = 250  # bus time of one frame (8 bytes at 500 kbit/s)
+    status_offset_us: int = 500  # BOARD_STATUS queued at k * 100 ms + this
+
+
+@dataclass(frozen=True, slots=True)
+class OdometerModel:
+    """The train's odometer unit: its own clock, schedule and speed error."""
+
+    time0_ticks: int = 0
+    drift_ppm: float = 0.0
+    offset_s: float = 0.0037  # first SPEED_REF after this much true time
+    noise_mps: float = 0.0
+    lag_s: float = 0.0  # the speed it reports is this old
+    counter0: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Fault:
+    index: int  # 1-based position in [[faults]]
+    kind: str
+    target: int | str  # 1..3, "adc", "status", "speed", "bus" or "uart"
+    start_s: float
+    end_s: float
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def label(self) -> str:
+        where = f"ch{self.target}" if isinstance(self.target, int) else self.target
+        return f"#{self.index} {self.kind} {where} {self.start_s:g}-{self.end_s:g} s"
+
+
+def _nominal_channels() -> tuple[ChannelModel, ChannelModel, ChannelModel]:
+    return tuple(ChannelModel(a) for a in NOMINAL_ANGLES_DEG)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    seed: int = 0
+    duration_s: float = 60.0
+    sample_rate_hz: int = DEFAULT_SAMPLE_RATE_HZ
+    base_id: int = DEFAULT_BASE
+    g: float = G0
+    speed_ref: bool = True
+    initial_speed_mps: float = 0.0
+    initial_position_m: float = 0.0
+    vertical_curve_m: float = 50.0
+    counter0: int = 0
+    board_time0_ticks: int = 0
+    start_time_s: float = 0.0
+    description: str = ""
+    track: tuple[TrackSegment, ...] = ()
+    train: tuple[TrainPhase, ...] = ()
+    channels: tuple[ChannelModel, ChannelModel, ChannelModel] = field(
+        default_factory=_nominal_channels
+    )
+    board: BoardModel = field(default_factory=BoardModel)
+    odometer: OdometerModel = field(default_factory=OdometerModel)
+    faults: tuple[Fault, ...] = ()
+    source: str = "<defaults>"
+
+    @property
+    def n_samples(self) -> int:
+        """Sampling instants in the run: t = n / rate for 0 <= t < duration."""
+        return math.ceil(self.duration_s * self.sample_rate_hz - 1e-9)
+
+    def with_changes(self, **changes: Any) -> Scenario:
+        return replace(self, **changes)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+class _Table:
+    """Typed, range-checked access to one TOML table; :meth:`done` rejects unknown keys."""
+
+    def __init__(self, file: str, where: str, value: Any) -> None:
+        self.file = file
+        self.where = where
+        if not isinstance(value, dict):
+            raise self.error("", f"expected a table, got {_tname(value)}")
+        self.data: dict[str, Any] = value
+        self.used: set[str] = set()
+
+    def path(self, key: str) -> str:
+        if not key:
+            return self.where or "(top level)"
+        return f"{self.where}.{key}" if self.where else key
+
+    def error(self, key: str, msg: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {self.path(key)}: {msg}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = None) -> Any:
+        self.used.add(key)
+        return self.data.get(key, default)
+
+    def num(
+        self,
+        key: str,
+        default: float,
+        lo: float | None = None,
+        hi: float | None = None,
+        *,
+        lo_open: bool = False,
+    ) -> float:
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise self.error(key, f"expected a number, got {_tname(v)} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.error(key, f"must be finite, got {v!r}")
+        _check_range(self, key, v, lo, hi, lo_open)
+        return v
+
+    def integer(self, key: str, default: int, lo: int | None = None, hi: int | None = None) -> int:
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"expected an integer, got {_tname(v)} {v!r}")
+        _check_range(self, key, v, lo, hi, False)
+        return v
+
+    def flag(self, key: str, default: bool) -> bool:
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            raise self.error(key, f"expected true or false, got {_tname(v)} {v!r}")
+        return v
+
+    def text(self, key: str, default: str) -> str:
+        v = self.raw(key, default)
+        if not isinstance(v, str):
+            raise self.error(key, f"expected a string, got {_tname(v)} {v!r}")
+        return v
+
+    def done(self, allowed: tuple[str, ...] | None = None) -> None:
+        names = sorted(allowed if allowed is not None else self.used)
+        for key in self.data:
+            if key not in names:
+                raise self.error(key, f"unknown key (expected one of: {', '.join(names)})")
+
+
+def _tname(v: Any) -> str:
+    return {
+        bool: "boolean",
+        int: "integer",
+        float: "number",
+        str: "string",
+        list: "array",
+        dict: "table",
+    }.get(type(v), type(v).__name__)
+
+
+def _check_range(
+    t: _Table, key: str, v: float, lo: float | None, hi: float | None, lo_open: bool
+) -> None:
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise t.error(key, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
+    if hi is not None and v > hi:
+        raise t.error(key, f"must be <= {hi:g}, got {v!r}")
+
+
+def _array(top: _Table, key: str) -> list[Any]:
+    v = top.raw(key, [])
+    if not isinstance(v, list):
+        raise top.error(key, f"expected an array of tables ([[{key}]]), got {_tname(v)}")
+    return v
+
+
+def _parse_track(file: str, items: list[Any]) -> tuple[TrackSegment, ...]:
+    out = []
+    for i, item in enumerate(items, 1):
+        t = _Table(file, f"track[{i}]", item)
+        if not t.has("length_m"):
+            raise t.error("length_m", "missing (every segment needs a length)")
+        length = t.num("length_m", 0.0, 0.0, 1e7, lo_open=True)
+        grad = t.num("gradient_permil", 0.0, -500.0, 500.0)
+        curve = t.num("vertical_curve_m", 0.0, 0.0, 1e4) if t.has("vertical_curve_m") else None
+        t.done()
+        out.append(TrackSegment(length, grad, curve))
+    return tuple(out)
+
+
+def _parse_train(file: str, items: list[Any]) -> tuple[TrainPhase, ...]:
+    out = []
+    for i, item in enumerate(items, 1):
+        t = _Table(file, f"train[{i}]", item)
+        if not t.has("duration_s"):
+            raise t.error("duration_s", "missing (every phase needs a duration)")
+        dur = t.num("duration_s", 0.0, 0.0, 1e6, lo_open=True)
+        acc = t.num("accel_mps2", 0.0, -10.0, 10.0)
+        rev = t.flag("allow_reverse", False)
+        t.done()
+        out.append(TrainPhase(dur, acc, rev))
+    return tuple(out)
+
+
+def _parse_channels(file: str, items: list[Any], rate: int) -> tuple[ChannelModel, ...]:
+    if not items:
+        return _nominal_channels()
+    if len(items) != 3:
+        raise ConfigError(
+            f"{file}: channels: expected exactly three [[channels]] tables (ch1..ch3), "
+            f"got {len(items)}"
+        )
+    out = []
+    for i, (item, nominal) in enumerate(zip(items, NOMINAL_ANGLES_DEG, strict=True), 1):
+        t = _Table(file, f"channels[{i}]", item)
+        out.append(
+            ChannelModel(
+                angle_deg=t.num("angle_deg", nominal, -90.0, 90.0),
+                bias_mps2=t.num("bias_mps2", 0.0, -20.0, 20.0),
+                scale_error=t.num("scale_error", 0.0, -0.5, 0.5),
+                noise_mps2=t.num("noise_mps2", 0.0, 0.0, 20.0),
+                vibration_mps2=t.num("vibration_mps2", 0.0, 0.0, 100.0),
+                vibration_hz=t.num("vibration_hz", 0.0, 0.0, 100_000.0),
+                vibration_phase_deg=t.num("vibration_phase_deg", 0.0, -360.0, 360.0),
+            )
+        )
+        t.done()
+    angles = [c.angle_deg for c in out]
+    if len(set(angles)) < 3:
+        raise ConfigError(f"{file}: channels: the three angle_deg values must differ, got {angles}")
+    return tuple(out)
+
+
+def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
+    t = _Table(file, "board", value)
+    b = BoardModel(
+        temperature_c=t.integer("temperature_c", 35, -128, 127),
+        supply_v=t.num("supply_v", 24.0, 0.0, 25.5),
+        errors0=t.integer("errors0", 0, 0, 255),
+        status_counter0=t.integer("status_counter0", 0, 0, 255),
+        latency_us=t.integer("latency_us", 100, 0, 100_000),
+        frame_gap_us=t.integer("frame_gap_us", 250, 1, 10_000),
+        status_offset_us=t.integer("status_offset_us", 500, 0, 99_999),
+    )
+    t.done()
+    # The bus must have room for everything, or send times would fall further behind forever.
+    load = b.frame_gap_us * (3 * rate + 10 + 50) / 1e6
+    if load >= 0.95:
+        raise t.error(
+            "frame_gap_us",
+            f"{b.frame_gap_us} us per frame at {rate} Hz needs {load:.0%} of the bus (max 95%)",
+        )
+    return b
+
+
+def _parse_odometer(file: str, value: Any) -> OdometerModel:
+    t = _Table(file, "odometer", value)
+    o = OdometerModel(
+        time0_ticks=t.integer("time0_ticks", 0, 0, 65535),
+        drift_ppm=t.num("drift_ppm", 0.0, -100_000.0, 100_000.0),
+        offset_s=t.num("offset_s", 0.0037, 0.0, 0.02),
+        noise_mps=t.num("noise_mps", 0.0, 0.0, 10.0),
+        lag_s=t.num("lag_s", 0.0, 0.0, 10.0),
+        counter0=t.integer("counter0", 0, 0, 255),
+    )
+    t.done()
+    return o
+
+
+_STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
+
+
+def _status_bits(t: _Table, key: str) -> int:
+    v = t.raw(key, FAULT_PARAMS["status"]["bits"])
+    if isinstance(v, list):
+        bits = 0
+        for name in v:
+            if not isinstance(name, str) or name.upper() not in _STATUS_BITS:
+                raise t.error(
+                    key,
+                    f"unknown status bit {name!r} (expected names from "
+                    f"{', '.join(_STATUS_BITS)} or an integer 1..255)",
+                )
+            bits |= _STATUS_BITS[name.upper()]
+        if not bits:
+            raise t.error(key, "names no bit")
+        return bits
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise t.error(key, f"expected an integer 1..255 or a list of bit names, got {v!r}")
+    _check_range(t, key, v, 1, 255, False)
+    return v
+
+
+def _parse_target(t: _Table, kind: str) -> int | str:
+    if not t.has("channel"):
+        raise t.error("channel", "missing (1..3, or one of adc, status, speed, bus, uart)")
+    v = t.raw("channel")
+    if kind in UART_KINDS:
+        allowed: tuple[Any, ...] = ("uart",)
+    elif kind in SIGNAL_KINDS:
+        allowed = (1, 2, 3, "adc")
+    else:
+        allowed = (1, 2, 3, *CAN_TARGETS)
+    if isinstance(v, bool) or v not in allowed:
+        shown = ", ".join(str(a) for a in allowed)
+        raise t.error("channel", f"{v!r} is not a target of a {kind!r} fault (expected {shown})")
+    return v
+
+
+def _parse_fault(file: str, i: int, item: Any, duration: float) -> Fault:
+    t = _Table(file, f"faults[{i}]", item)
+    kind = t.raw("kind")
+    if kind is None:
+        raise t.error("kind", f"missing (one of {', '.join(FAULT_KINDS)})")
+    if not isinstance(kind, str) or kind not in FAULT_PARAMS:
+        raise t.error(
+            "kind", f"unknown fault kind {kind!r} (expected one of {', '.join(FAULT_KINDS)})"
+        )
+    target = _parse_target(t, kind)
+    start = t.num("start_s", 0.0, 0.0, None)
+    if start >= duration:
+        raise t.error("start_s", f"must be < duration_s ({duration:g}), got {start!r}")
+    end = t.num("end_s", duration, 0.0, None)
+    if end <= start:
+        raise t.error("end_s", f"must be > start_s ({start:g}), got {end!r}")
+    params: dict[str, Any] = {}
+    for key, default in FAULT_PARAMS[kind].items():
+        if key == "bits":
+            params[key] = _status_bits(t, key)
+        elif key == "code":
+            params[key] = t.integer(key, 0, -(1 << 23), (1 << 23) - 1) if t.has(key) else None
+        elif key == "probability":
+            params[key] = t.num(key, default, 0.0, 1.0)
+        elif key == "width_samples":
+            params[key] = t.integer(key, default, 1, 10_000)
+        elif key == "depth":
+            params[key] = t.integer(key, default, 1, 1000)
+        elif key == "burst_bytes":
+            params[key] = t.integer(key, default, 1, 1024)
+        elif key == "jump":
+            params[key] = t.integer(key, default, -255, 255)
+            if params[key] % 256 == 0:
+                raise t.error(key, "must not be a multiple of 256 (that is no jump)")
+        elif key == "rate_hz":
+            params[key] = t.num(key, default, 0.0, 1e5)
+        elif key == "amplitude_mps2" or key == "value_mps2" or key == "offset_mps2":
+            params[key] = t.num(key, default, -1000.0, 1000.0)
+        elif key == "rate_mps2_per_s":
+            params[key] = t.num(key, default, -100.0, 100.0)
+        else:  # pragma: no cover - every parameter above has a rule
+            raise AssertionError(key)
+    t.done((*_COMMON_FAULT_KEYS, *FAULT_PARAMS[kind]))
+    return Fault(i, kind, target, start, end, params)
+
+
+_TOP_KEYS = (
+    "seed",
+    "duration_s",
+    "sample_rate_hz",
+    "base_id",
+    "g",
+    "speed_ref",
+    "initial_speed_mps",
+    "initial_position_m",
+    "vertical_curve_m",
+    "counter0",
+    "board_time0_ticks",
+    "start_time_s",
+    "description",
+    "track",
+    "train",
+    "channels",
+    "board",
+    "odometer",
+    "faults",
+)
+
+
+def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scenario:
+    """Validate a parsed TOML document into a Scenario. Raises ConfigError naming the key."""
+    top = _Table(source, "", dict(data))
+    top.done(_TOP_KEYS)
+    seed = top.integer("seed", 0, 0, (1 << 63) - 1)
+    duration = top.num("duration_s", 60.0, 0.0, MAX_DURATION_S, lo_open=True)
+    rate = top.integer("sample_rate_hz", DEFAULT_SAMPLE_RATE_HZ, 50, 1000)
+    base = top.integer("base_id", DEFAULT_BASE, 0, 0x7FC)
+    if base <= SPEED_REF_ID <= base + 3:
+        raise top.error("base_id", f"0x{base:X}..0x{base + 3:X} would overlap SPEED_REF 0x180")
+    sc = Scenario(
+        seed=seed,
+        duration_s=duration,
+        sample_rate_hz=rate,
+        base_id=base,
+        g=top.num("g", G0, 1.0, 20.0),
+        speed_ref=top.flag("speed_ref", True),
+        initial_speed_mps=top.num("initial_speed_mps", 0.0, -150.0, 150.0),
+        initial_position_m=top.num("initial_position_m", 0.0, -1e7, 1e7),
+        vertical_curve_m=top.num("vertical_curve_m", 50.0, 0.0, 1e4),
+        counter0=top.integer("counter0", 0, 0, 255),
+        board_time0_ticks=top.integer("board_time0_ticks", 0, 0, 65535),
+        start_time_s=top.num("start_time_s", 0.0, 0.0, 1e10),
+        description=top.text("description", ""),
+        track=_parse_track(source, _array(top, "track")),
+        train=_parse_train(source, _array(top, "train")),
+        channels=_parse_channels(source, _array(top, "channels"), rate),  # type: ignore[arg-type]
+        board=_parse_board(source, top.raw("board", {}), rate),
+        odometer=_parse_odometer(source, top.raw("odometer", {})),
+        faults=tuple(
+            _parse_fault(source, i, item, duration)
+            for i, item in enumerate(_array(top, "faults"), 1)
+        ),
+        source=source,
+    )
+    return sc
+
+
+def parse_scenario(text: str, source: str = "<string>") -> Scenario:
+    """Parse scenario TOML text (``source`` names it in error messages)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    return scenario_from_dict(data, source)
+
+
+def resolve_scenario_path(name: str | Path) -> Path:
+    """A path as given if it exists, else a built-in scenario by name (``demo`` -> demo.toml)."""
+    p = Path(name)
+    if p.exists():
+        return p
+    builtin = SCENARIO_DIR / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
+    if p.parent == Path(".") and builtin.exists():
+        return builtin
+    known = ", ".join(builtin_scenarios())
+    raise ConfigError(f"{p}: no such scenario file (built-in scenarios: {known})")
+
+
+def builtin_scenarios() -> list[str]:
+    return sorted(f.stem for f in SCENARIO_DIR.glob("*.toml"))
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file (or a built-in scenario by name)."""
+    p = resolve_scenario_path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read scenario: {exc.strerror or exc}") from None
+    return parse_scenario(text, p.name)
+
+
+def calibration_toml(sc: Scenario) -> str:
+    """A bench calibration config (bench.config format) matching this board as built.
+
+    The angles are the true ones, so a bench run against the emulator with this config
+    isolates fusion errors from calibration errors.
+    """
+    lines = [
+        f"# calibration of the virtual board of {sc.source}",
+        "[board]",
+        f"base_id = 0x{sc.base_id:X}",
+        f"sample_rate_hz = {sc.sample_rate_hz}",
+        "",
+    ]
+    for c in sc.channels:
+        lines += ["[[channels]]", f"angle_deg = {c.angle_deg!r}", ""]
+    lines += ["[fusion]", f"g = {sc.g!r}", ""]
+    return "\n".join(lines)
+
