@@ -25,7 +25,11 @@ from protocol.records import (
 )
 from tests.test_protocol_can import adc_samples, board_statuses, speed_refs
 
-ERROR_OUTCOME = {UnknownId: Outcome.UNKNOWN_ID, WrongDlc: Outcome.WRONG_DLC, CrcMismatch: Outcome.CRC_MISMATCH}
+ERROR_OUTCOME = {
+    UnknownId: Outcome.UNKNOWN_ID,
+    WrongDlc: Outcome.WRONG_DLC,
+    CrcMismatch: Outcome.CRC_MISMATCH,
+}
 
 
 @st.composite

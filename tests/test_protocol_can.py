@@ -113,9 +113,7 @@ def test_encode_rejects_out_of_range_code() -> None:
 
 u8 = st.integers(0, 255)
 u16 = st.integers(0, 0xFFFF)
-adc_samples = st.builds(
-    AdcSample, st.integers(1, 3), u8, st.integers(-(2**23), 2**23 - 1), u8, u16
-)
+adc_samples = st.builds(AdcSample, st.integers(1, 3), u8, st.integers(-(2**23), 2**23 - 1), u8, u16)
 board_statuses = st.builds(BoardStatus, u8, u8, u16, st.integers(-128, 127), u8, u8)
 speed_refs = st.builds(SpeedRef, u8, st.integers(-(2**31), 2**31 - 1), u16)
 bases = st.sampled_from([0x100, 0x200, 0x300])

@@ -90,4 +90,6 @@ def test_frame_crc8_batch_equals_scalar(arrays: tuple[np.ndarray, np.ndarray]) -
     got = frame_crc8_batch(ids, data)
     assert got.dtype == np.uint8
     assert got.shape == ids.shape
-    assert got.tolist() == [frame_crc8_ref(int(i), bytes(row)) for i, row in zip(ids, data, strict=True)]
+    assert got.tolist() == [
+        frame_crc8_ref(int(i), bytes(row)) for i, row in zip(ids, data, strict=True)
+    ]

@@ -85,8 +85,7 @@ def train_motion(
         tau = np.minimum(t[sel] - t0, run)
         acc[sel] = np.where(t[sel] - t0 < run, a, 0.0)
         v[sel] = vs + a * tau
-        x[sel] = xs + vs * tau + 0.5 * a * tau * tau + (vs + a * run) * 0.0
-        # after the stop (tau == run < elapsed) the train stands still: no extra distance
+        x[sel] = xs + vs * tau + 0.5 * a * tau * tau  # tau stops growing once stopped
         t1 = t0 + ph.duration_s
         v1 = vs + a * run
         x1 = xs + vs * run + 0.5 * a * run * run

@@ -1,0 +1,207 @@
+"""Fault injection: pure functions that bend signals, codes, frame sequences and UART packets.
+
+Three layers, applied in this order by :mod:`devices.emulator.simulation`:
+
+1. signal faults inside the board (``drift``, ``spike``, ``saturate`` on the sensor value;
+   ``stuck`` on the ADC code; ``status`` bits) -- seen on CAN and UART alike;
+2. source faults on whole frames (``dropout``, ``counter_jump``, ``crc``) -- the board (or
+   the odometer) sends them that way, so they too reach both links;
+3. link faults: ``duplicate`` (before bus scheduling: the copy takes bus time), ``loss`` and
+   ``reorder`` (after it, at the receiving adapter) on CAN only; ``noise`` and ``truncation``
+   on the UART byte stream only.
+
+Every random choice comes from a generator seeded by (scenario seed, layer, fault index), so
+adding a fault never changes the noise or another fault's choices.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from cobs import cobs
+
+from devices.emulator.scenario import Fault
+from protocol.crc import crc16_ccitt_false
+from protocol.layout import FrameKind
+
+LAYER_NOISE = 1
+LAYER_FAULT = 2
+LAYER_ODOMETER = 3
+LAYER_UART = 4
+
+
+def rng_for(seed: int, layer: int, index: int = 0) -> np.random.Generator:
+    """An independent generator per (layer, index): same seed -> same draws, bit for bit."""
+    return np.random.default_rng([seed, layer, index])
+
+
+def to_us(seconds: float) -> int:
+    return round(seconds * 1e6)
+
+
+def in_window(times_us: np.ndarray, fault: Fault) -> np.ndarray:
+    """Which instants fall in the fault's half-open window [start_s, end_s)."""
+    return (times_us >= to_us(fault.start_s)) & (times_us < to_us(fault.end_s))
+
+
+def target_channels(fault: Fault) -> tuple[int, ...]:
+    """ADC channel numbers (1..3) a fault acts on."""
+    if isinstance(fault.target, int):
+        return (fault.target,)
+    return (1, 2, 3) if fault.target in ("adc", "bus") else ()
+
+
+def frame_targets(fault: Fault, kind: np.ndarray, channel: np.ndarray) -> np.ndarray:
+    """Which frames of a sequence a frame-level fault's target names."""
+    t = fault.target
+    if isinstance(t, int):
+        return (kind == FrameKind.ADC) & (channel == t)
+    if t == "adc":
+        return kind == FrameKind.ADC
+    if t == "status":
+        return kind == FrameKind.STATUS
+    if t == "speed":
+        return kind == FrameKind.SPEED
+    return np.ones(len(kind), dtype=bool)  # "bus"
+
+
+def pick(mask: np.ndarray, probability: float, rng: np.random.Generator) -> np.ndarray:
+    """Subset of a mask, each member kept with the given probability (1.0: all of them)."""
+    if probability >= 1.0:
+        return mask.copy()
+    out = np.zeros_like(mask)
+    idx = np.flatnonzero(mask)
+    out[idx[rng.random(len(idx)) < probability]] = True
+    return out
+
+
+# ------------------------------------------------------------------ layer 1: inside the board
+
+
+def apply_value_fault(
+    values: np.ndarray, fault: Fault, t_us: np.ndarray, rate_hz: int, rng: np.random.Generator
+) -> np.ndarray:
+    """drift, spike or saturate on the sensor values (3, n) in place; returns the samples hit."""
+    win = in_window(t_us, fault)
+    p = fault.params
+    hit = np.zeros(len(t_us), dtype=bool)
+    for ch in target_channels(fault):
+        row = values[ch - 1]
+        if fault.kind == "drift":
+            dt = (t_us[win] - to_us(fault.start_s)) / 1e6
+            row[win] += p["offset_mps2"] + p["rate_mps2_per_s"] * dt
+            hit |= win
+        elif fault.kind == "saturate":
+            row[win] = p["value_mps2"]
+            hit |= win
+        elif fault.kind == "spike":
+            idx = np.flatnonzero(win)
+            if len(idx) == 0:
+                continue
+            expected = p["rate_hz"] * len(idx) / rate_hz
+            starts = np.unique(rng.choice(idx, size=min(rng.poisson(expected), len(idx))))
+            signs = np.where(rng.random(len(starts)) < 0.5, -1.0, 1.0)
+            for k in range(p["width_samples"]):
+                at = starts + k
+                keep = at <= idx[-1]
+                row[at[keep]] += signs[keep] * p["amplitude_mps2"]
+                hit[at[keep]] = True
+    return np.flatnonzero(hit)
+
+
+def apply_stuck(codes: np.ndarray, status: np.ndarray, fault: Fault, t_us: np.ndarray) -> np.ndarray:
+    """Freeze code and status of the target channels (3, n) in place; returns the samples hit.
+
+    The ADC register stops updating: it repeats the last value before the window (the first
+    value when the window starts the run), or the fault's ``code`` when given.
+    """
+    idx = np.flatnonzero(in_window(t_us, fault))
+    if len(idx) == 0:
+        return idx
+    last = max(idx[0] - 1, 0)
+    for ch in target_channels(fault):
+        code = fault.params["code"]
+        codes[ch - 1, idx] = codes[ch - 1, last] if code is None else code
+        status[ch - 1, idx] = status[ch - 1, last] if code is None else 0
+    return idx
+
+
+def apply_status_bits(status: np.ndarray, fault: Fault, t_us: np.ndarray) -> np.ndarray:
+    """OR the fault's bits into the status byte of the target channels; returns samples hit."""
+    idx = np.flatnonzero(in_window(t_us, fault))
+    for ch in target_channels(fault):
+        status[ch - 1, idx] |= np.uint8(fault.params["bits"])
+    return idx
+
+
+# --------------------------------------------------------------- layer 2/3: frame sequences
+
+
+def duplicate_rows(n: int, dup: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Row order with each marked row repeated right after itself; also the is-copy flags."""
+    order = np.repeat(np.arange(n), 1 + dup.astype(np.int64))
+    is_copy = np.zeros(len(order), dtype=bool)
+    is_copy[1:] = order[1:] == order[:-1]
+    return order, is_copy
+
+
+def reorder_rows(moved: np.ndarray, depth: int) -> np.ndarray:
+    """Row order with each marked row delayed by ``depth`` positions (others keep their order)."""
+    pos = np.arange(len(moved), dtype=np.float64)
+    pos[moved] += depth + 0.5
+    return np.argsort(pos, kind="stable")
+
+
+def serialise(queue_us: np.ndarray, gap_us: int) -> np.ndarray:
+    """Bus send times: each frame goes when queued, but not before the previous one is done.
+
+    send[k] = max(queue[k], send[k-1] + gap), solved without a loop: subtracting k*gap turns
+    the recurrence into a running maximum.
+    """
+    k = np.arange(len(queue_us), dtype=np.int64) * gap_us
+    return np.maximum.accumulate(queue_us - k) + k
+
+
+def flip_bits(data: np.ndarray, rows: np.ndarray, rng: np.random.Generator) -> None:
+    """Flip one random bit of the 8 payload bytes of each row (in place).
+
+    CRC-8/SAE-J1850 detects every single-bit error, so each of these frames fails its CRC.
+    """
+    bit = rng.integers(0, 64, size=len(rows))
+    data[rows, bit // 8] ^= (1 << (bit % 8)).astype(np.uint8)
+
+
+# ---------------------------------------------------------------------- layer 3: UART bytes
+
+
+def packet_valid(body: bytes) -> bool:
+    """Would a receiver accept this packet (the bytes before its 0x00)? ICD section 2."""
+    try:
+        out = cobs.decode(body)
+    except cobs.DecodeError:
+        return False
+    if len(out) < 5 or len(out) != 3 + out[2] + 2:
+        return False
+    return crc16_ccitt_false(out[:-2]) == out[-2] | (out[-1] << 8)
+
+
+def inject_noise(body: bytes, burst: int, rng: np.random.Generator) -> bytes:
+    """Line noise: ``burst`` non-zero garbage bytes inserted somewhere inside one packet.
+
+    Non-zero so the garbage cannot end the packet early: one burst breaks exactly one packet.
+    """
+    for _ in range(16):
+        at = int(rng.integers(0, len(body) + 1))
+        junk = rng.integers(1, 256, size=burst, dtype=np.uint8).tobytes()
+        out = body[:at] + junk + body[at:]
+        if not packet_valid(out):
+            return out
+    return body[:1]  # astronomically unlikely; a one-byte packet is always invalid
+
+
+def truncate(body: bytes, rng: np.random.Generator) -> bytes:
+    """Bytes lost before the delimiter: keep a random non-empty proper prefix of the packet."""
+    for _ in range(16):
+        out = body[: int(rng.integers(1, len(body)))]
+        if not packet_valid(out):
+            return out
+    return body[:1]

@@ -1,0 +1,430 @@
+"""simulate(scenario) -> Simulation: every frame the virtual board run sends, its truth and
+what each fault did. Pure and deterministic: the same scenario (seed included) gives the
+same frames bit for bit.
+
+Send times are whole microseconds (``t = us / 1e6``) so that a candump text log, which
+prints six decimals, parses back to the identical float64.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.errors import BenchError
+from devices.emulator import faults as fx
+from devices.emulator.board import FrameSet, adc_frames, merge, speed_frames, status_frames
+from devices.emulator.scenario import Fault, Scenario
+from devices.emulator.world import (
+    gradient_profile,
+    quantise,
+    sensor_output,
+    specific_force,
+    train_motion,
+)
+from protocol.frames import FRAME_DTYPE
+from protocol.layout import (
+    FRAME_DLC,
+    SPEED_REF_RATE_HZ,
+    STATUS_OVR,
+    STATUS_RATE_HZ,
+    BoardState,
+    FrameKind,
+)
+
+TRUTH_DTYPE = np.dtype(
+    [
+        ("time_s", "<f8"),  # sampling instant, same time base as the frames' t
+        ("counter", "<i8"),  # unwrapped sample counter: counter0 + n (wire counter = this % 256)
+        ("gradient_permil", "<f8"),  # at the train's position
+        ("accel_mps2", "<f8"),  # d(speed)/dt along the track
+        ("speed_mps", "<f8"),
+        ("position_m", "<f8"),
+    ]
+)
+TRUTH_COLUMNS = TRUTH_DTYPE.names
+
+_EMPTY = np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FaultEffect:
+    """What one scenario fault did to the output.
+
+    ``frames``: indices into ``Simulation.frames`` (or, for UART faults, into the UART
+    stream's packets) that the fault changed, added (duplicate copies) or moved (reorder).
+    ``removed_uids``: identities (``Simulation.nominal`` rows) of frames it removed.
+    ``samples``: ADC sample indices n it acted on.
+    """
+
+    fault: Fault
+    frames: np.ndarray = field(default_factory=lambda: _EMPTY)
+    removed_uids: np.ndarray = field(default_factory=lambda: _EMPTY)
+    samples: np.ndarray = field(default_factory=lambda: _EMPTY)
+
+    @property
+    def count(self) -> int:
+        return len(self.frames) + len(self.removed_uids)
+
+    def describe(self) -> str:
+        parts = []
+        if len(self.frames):
+            verb = {"duplicate": "added", "reorder": "moved", "noise": "broke", "truncation": "broke"}
+            unit = "packets" if self.fault.target == "uart" else "frames"
+            parts.append(f"{verb.get(self.fault.kind, 'changed')} {len(self.frames)} {unit}")
+        if len(self.removed_uids):
+            parts.append(f"removed {len(self.removed_uids)} frames")
+        return f"{self.fault.label}: {', '.join(parts) or 'no effect'}"
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class UartStream:
+    """The board's UART byte stream (ICD section 2) with the UART faults applied."""
+
+    data: bytes
+    packet_t: np.ndarray  # float64 send time of each packet, s
+    packet_end: np.ndarray  # int64 offset just past each packet's 0x00 in ``data``
+    packet_uid: np.ndarray  # int64 nominal identity of the frame each packet carries
+    broken: np.ndarray  # int64 indices of the packets a UART fault broke (sorted, unique)
+    effects: tuple[FaultEffect, ...]
+
+    @property
+    def packets_broken(self) -> int:
+        return len(self.broken)
+
+    def __len__(self) -> int:
+        return len(self.packet_t)
+
+
+@dataclass(eq=False)
+class Simulation:
+    scenario: Scenario
+    frames: np.ndarray  # FRAME_DTYPE, CAN send (and receive) order
+    frame_uid: np.ndarray  # int64: row of ``nominal`` each frame came from (copies share it)
+    frame_copy: np.ndarray  # bool: a duplicate-fault copy
+    truth: np.ndarray  # TRUTH_DTYPE, one row per sampling instant
+    effects: tuple[FaultEffect, ...]
+    nominal: FrameSet  # the fault-free sequence in bus order (uid = row)
+    board_uid: np.ndarray  # the board's frames as sent on the UART: identity...
+    board_send_us: np.ndarray  # ...and send time (relative us)
+    board_data: np.ndarray  # (N, 8) payloads as sent (source faults applied)
+    _uart: UartStream | None = None
+
+    # per-frame facts, by identity
+    @property
+    def frame_kind(self) -> np.ndarray:
+        return self.nominal.kind[self.frame_uid]
+
+    @property
+    def frame_channel(self) -> np.ndarray:
+        return self.nominal.channel[self.frame_uid]
+
+    @property
+    def frame_seq(self) -> np.ndarray:
+        """Sample index n of ADC frames; frame index of STATUS and SPEED frames."""
+        return self.nominal.seq[self.frame_uid]
+
+    @property
+    def t0(self) -> float:
+        """Time of the run's start on the frames' time base (scenario start_time_s)."""
+        return fx.to_us(self.scenario.start_time_s) / 1e6
+
+    def effect(self, index: int) -> FaultEffect:
+        """The effect of the fault at 1-based position ``index`` of [[faults]]."""
+        for e in (*self.effects, *self.uart_effects()):
+            if e.fault.index == index:
+                return e
+        raise KeyError(index)
+
+    def uart_effects(self) -> tuple[FaultEffect, ...]:
+        if not any(f.target == "uart" for f in self.scenario.faults):
+            return ()
+        return self.uart_stream().effects
+
+    def uart_stream(self) -> UartStream:
+        """The UART byte stream (computed on first use: it encodes packets one by one)."""
+        if self._uart is None:
+            self._uart = _uart_stream(self)
+        return self._uart
+
+    def uart_bytes(self) -> bytes:
+        return self.uart_stream().data
+
+    def summary(self) -> str:
+        kinds = self.frame_kind
+        sc = self.scenario
+        lines = [
+            f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
+            f"{len(self.frames)} frames ({int((kinds == FrameKind.ADC).sum())} ADC, "
+            f"{int((kinds == FrameKind.STATUS).sum())} status, "
+            f"{int((kinds == FrameKind.SPEED).sum())} speed)"
+        ]
+        lines += [f"  fault {e.describe()}" for e in self.effects]
+        if self._uart is not None:
+            lines += [f"  fault {e.describe()}" for e in self._uart.effects]
+        return "\n".join(lines)
+
+
+def simulate(sc: Scenario) -> Simulation:
+    """Run the scenario: world -> sensors -> ADC -> frames -> faults -> bus schedule."""
+    rate = sc.sample_rate_hz
+    n = sc.n_samples
+    idx = np.arange(n, dtype=np.int64)
+    sample_us = (idx * 1_000_000 + rate // 2) // rate
+    t = sample_us / 1e6
+    start_us = fx.to_us(sc.start_time_s)
+    duration_us = fx.to_us(sc.duration_s)
+
+    # --- the world and the sensors
+    motion = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, t)
+    grad = gradient_profile(sc.track, sc.vertical_curve_m, motion.position_m)
+    values = np.empty((3, n), dtype=np.float64)
+    for i, ch in enumerate(sc.channels):
+        ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
+        values[i] = sensor_output(ideal, ch, t, fx.rng_for(sc.seed, fx.LAYER_NOISE, i + 1))
+
+    # --- layer 1: faults inside the board
+    hit: dict[int, np.ndarray] = {}
+    for f in sc.faults:
+        if f.kind in ("drift", "spike", "saturate"):
+            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
+            hit[f.index] = fx.apply_value_fault(values, f, sample_us, rate, rng)
+    codes, over = quantise(values)
+    status = np.where(over, STATUS_OVR, 0).astype(np.uint8)
+    for f in sc.faults:
+        if f.kind == "stuck":
+            hit[f.index] = fx.apply_stuck(codes, status, f, sample_us)
+    for f in sc.faults:
+        if f.kind == "status":
+            hit[f.index] = fx.apply_status_bits(status, f, sample_us)
+
+    # --- frames of the three streams (counter jumps are part of what the sender sends)
+    jumps = [f for f in sc.faults if f.kind == "counter_jump"]
+    counters = np.tile(sc.counter0 + idx, (3, 1))
+    for f in jumps:
+        win = fx.in_window(sample_us, f)
+        for ch in fx.target_channels(f):
+            counters[ch - 1, win] += f.params["jump"]
+    ticks = sc.board_time0_ticks + (idx * 10_000 + rate // 2) // rate
+    parts = [adc_frames(sc.base_id, sample_us, sc.board.latency_us, counters, codes, status, ticks)]
+    parts.append(_status_stream(sc, duration_us, jumps))
+    if sc.speed_ref:
+        parts.append(_speed_stream(sc, duration_us, jumps))
+    nominal = merge(parts)
+    n_nom = len(nominal)
+
+    # --- layer 2: source faults (both links)
+    alive = np.ones(n_nom, dtype=bool)
+    data = nominal.data.copy()
+    corrupted = np.zeros(n_nom, dtype=bool)
+    removed: dict[int, np.ndarray] = {}
+    crc_uids: dict[int, np.ndarray] = {}
+    for f in sc.faults:
+        if f.kind == "dropout":
+            sel = _targeted(nominal, f) & alive
+            removed[f.index] = np.flatnonzero(sel)
+            alive &= ~sel
+    for f in sc.faults:
+        if f.kind == "crc":
+            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
+            sel = fx.pick(_targeted(nominal, f) & alive & ~corrupted, f.params["probability"], rng)
+            rows = np.flatnonzero(sel)
+            fx.flip_bits(data, rows, rng)
+            corrupted |= sel
+            crc_uids[f.index] = rows
+    uids = np.flatnonzero(alive)
+
+    # --- layer 3a: duplicates take bus time, so they come before scheduling
+    tag = np.zeros(len(uids), dtype=np.int64)  # fault index that made a copy, 0 = original
+    for f in sc.faults:
+        if f.kind == "duplicate":
+            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
+            cand = _targeted(nominal, f, uids) & (tag == 0)
+            order, is_copy = fx.duplicate_rows(len(uids), fx.pick(cand, f.params["probability"], rng))
+            uids, tag = uids[order], np.where(is_copy, f.index, tag[order])
+    send_us = fx.serialise(nominal.queue_us[uids], sc.board.frame_gap_us)
+    on_uart = (tag == 0) & (nominal.kind[uids] != FrameKind.SPEED)
+    board_uid, board_send_us = uids[on_uart], send_us[on_uart]
+
+    # --- layer 3b: the receiving adapter loses and reorders frames
+    rid = np.arange(len(uids), dtype=np.int64)
+    lost: dict[int, np.ndarray] = {}
+    for f in sc.faults:
+        if f.kind == "loss":
+            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
+            sel = fx.pick(_targeted(nominal, f, uids), f.params["probability"], rng)
+            lost[f.index] = uids[sel]
+            keep = ~sel
+            uids, tag, rid, send_us = uids[keep], tag[keep], rid[keep], send_us[keep]
+    moved: dict[int, np.ndarray] = {}
+    for f in sc.faults:
+        if f.kind == "reorder":
+            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
+            sel = fx.pick(_targeted(nominal, f, uids), f.params["probability"], rng)
+            moved[f.index] = rid[sel]
+            order = fx.reorder_rows(sel, f.params["depth"])
+            uids, tag, rid = uids[order], tag[order], rid[order]  # times stay with the slots
+
+    frames = np.zeros(len(uids), dtype=FRAME_DTYPE)
+    frames["t"] = (start_us + send_us) / 1e6
+    frames["id"] = nominal.can_id[uids]
+    frames["dlc"] = FRAME_DLC
+    frames["data"] = data[uids]
+
+    # --- what each fault did, in terms of the final frames
+    pos_of_rid = np.full(int(rid.max()) + 1 if len(rid) else 0, -1, dtype=np.int64)
+    pos_of_rid[rid] = np.arange(len(rid))
+    effects = []
+    for f in sc.faults:
+        if f.target == "uart":
+            continue
+        if f.index in hit:
+            mask = _sample_mask(nominal, f, hit[f.index], n)
+            eff = FaultEffect(f, _final(mask, uids), samples=hit[f.index])
+        elif f.kind == "dropout":
+            eff = FaultEffect(f, removed_uids=removed[f.index], samples=_adc_samples(nominal, removed[f.index]))
+        elif f.kind == "crc":
+            mask = np.zeros(n_nom, dtype=bool)
+            mask[crc_uids[f.index]] = True
+            eff = FaultEffect(f, _final(mask, uids), samples=_adc_samples(nominal, crc_uids[f.index]))
+        elif f.kind == "counter_jump":
+            mask = _targeted(nominal, f)
+            eff = FaultEffect(f, _final(mask, uids), samples=_adc_samples(nominal, np.flatnonzero(mask)))
+        elif f.kind == "duplicate":
+            rows = np.flatnonzero(tag == f.index)
+            eff = FaultEffect(f, rows, samples=_adc_samples(nominal, uids[rows]))
+        elif f.kind == "loss":
+            eff = FaultEffect(f, removed_uids=lost[f.index], samples=_adc_samples(nominal, lost[f.index]))
+        else:  # reorder
+            rows = np.sort(pos_of_rid[moved[f.index]])
+            eff = FaultEffect(f, rows, samples=_adc_samples(nominal, uids[rows]))
+        effects.append(eff)
+
+    truth = np.zeros(n, dtype=TRUTH_DTYPE)
+    truth["time_s"] = (start_us + sample_us) / 1e6
+    truth["counter"] = sc.counter0 + idx
+    truth["gradient_permil"] = grad
+    truth["accel_mps2"] = motion.accel_mps2
+    truth["speed_mps"] = motion.speed_mps
+    truth["position_m"] = motion.position_m
+    return Simulation(
+        scenario=sc,
+        frames=frames,
+        frame_uid=uids,
+        frame_copy=tag > 0,
+        truth=truth,
+        effects=tuple(effects),
+        nominal=nominal,
+        board_uid=board_uid,
+        board_send_us=board_send_us,
+        board_data=data[board_uid],
+    )
+
+
+def _jump_offsets(f_list: list[Fault], target: str, when_us: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(when_us), dtype=np.int64)
+    for f in f_list:
+        if f.target in (target, "bus"):
+            out[fx.in_window(when_us, f)] += f.params["jump"]
+    return out
+
+
+def _status_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSet:
+    period = 1_000_000 // STATUS_RATE_HZ
+    when = np.arange(sc.board.status_offset_us, duration_us, period, dtype=np.int64)
+    k = np.arange(len(when), dtype=np.int64)
+    degraded = np.zeros(len(when), dtype=bool)
+    errors = np.full(len(when), sc.board.errors0, dtype=np.int64)
+    for f in sc.faults:
+        if f.kind == "status":
+            degraded |= fx.in_window(when, f)
+        if f.kind in ("status", "saturate"):  # the board notices these and counts them
+            errors += when >= fx.to_us(f.start_s)
+    states = np.where(degraded, BoardState.DEGRADED, BoardState.RUN)
+    counters = sc.board.status_counter0 + k + _jump_offsets(jumps, "status", when)
+    b = sc.board
+    return status_frames(
+        sc.base_id, when, counters, states, sc.sample_rate_hz, b.temperature_c, b.supply_v, errors
+    )
+
+
+def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSet:
+    """SPEED_REF on the odometer's own clock: it sends every 20 ms of ITS time, so a clock
+    drift changes the true spacing; its timestamps start at its own time0."""
+    od = sc.odometer
+    period_s = 1.0 / SPEED_REF_RATE_HZ
+    rate = 1.0 + od.drift_ppm * 1e-6
+    m_count = max(int((sc.duration_s * rate - od.offset_s) / period_s) + 2, 0)
+    m = np.arange(m_count, dtype=np.int64)
+    when = np.rint((od.offset_s + m * period_s) / rate * 1e6).astype(np.int64)
+    keep = when < duration_us
+    m, when = m[keep], when[keep]
+    v = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, when / 1e6 - od.lag_s)
+    speed = v.speed_mps
+    if od.noise_mps:
+        speed = speed + od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
+    mm = np.clip(np.rint(speed * 1000.0), -(2**31), 2**31 - 1).astype(np.int64)
+    ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
+    counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)
+    return speed_frames(when, counters, mm, ticks)
+
+
+def _targeted(nominal: FrameSet, f: Fault, rows: np.ndarray | None = None) -> np.ndarray:
+    """Frames (all nominal ones, or the given rows) a frame fault aims at, inside its window."""
+    kind, ch, when = nominal.kind, nominal.channel, nominal.when_us
+    if rows is not None:
+        kind, ch, when = kind[rows], ch[rows], when[rows]
+    return fx.frame_targets(f, kind, ch) & fx.in_window(when, f)
+
+
+def _sample_mask(nominal: FrameSet, f: Fault, samples: np.ndarray, n: int) -> np.ndarray:
+    hit = np.zeros(n, dtype=bool)
+    hit[samples] = True
+    is_adc = nominal.kind == FrameKind.ADC
+    chan_ok = np.isin(nominal.channel, fx.target_channels(f))
+    return is_adc & chan_ok & hit[np.where(is_adc, nominal.seq, 0)]
+
+
+def _final(mask_nominal: np.ndarray, uids: np.ndarray) -> np.ndarray:
+    return np.flatnonzero(mask_nominal[uids])
+
+
+def _adc_samples(nominal: FrameSet, uids: np.ndarray) -> np.ndarray:
+    adc = nominal.kind[uids] == FrameKind.ADC
+    return np.unique(nominal.seq[uids[adc]])
+
+
+def _uart_stream(sim: Simulation) -> UartStream:
+    try:
+        from protocol.uart import encode_packet
+    except ImportError as exc:  # pragma: no cover - lands with the UART codec
+        raise BenchError(f"UART output needs protocol.uart.encode_packet ({exc})") from None
+    sc = sim.scenario
+    ids = sim.nominal.can_id[sim.board_uid].tolist()
+    payload = sim.board_data.tobytes()
+    bodies = [encode_packet(cid, payload[8 * k : 8 * k + 8])[:-1] for k, cid in enumerate(ids)]
+    send_us = sim.board_send_us
+    effects = []
+    broken: set[int] = set()
+    for f in sc.faults:
+        if f.target != "uart":
+            continue
+        rng = fx.rng_for(sc.seed, fx.LAYER_UART, f.index)
+        rows = np.flatnonzero(fx.pick(fx.in_window(send_us, f), f.params["probability"], rng))
+        for r in rows.tolist():
+            if f.kind == "noise":
+                bodies[r] = fx.inject_noise(bodies[r], f.params["burst_bytes"], rng)
+            else:
+                bodies[r] = fx.truncate(bodies[r], rng)
+        broken.update(rows.tolist())
+        effects.append(FaultEffect(f, rows))
+    lengths = np.fromiter((len(b) + 1 for b in bodies), dtype=np.int64, count=len(bodies))
+    return UartStream(
+        data=b"".join(b + b"\x00" for b in bodies),
+        packet_t=(fx.to_us(sc.start_time_s) + send_us) / 1e6,
+        packet_end=np.cumsum(lengths),
+        packet_uid=sim.board_uid,
+        broken=np.array(sorted(broken), dtype=np.int64),
+        effects=tuple(effects),
+    )

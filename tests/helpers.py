@@ -1,0 +1,33 @@
+"""Frame-building helpers for tests: hand-made ACB-3 frames, independent of the emulator."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from protocol.can_codec import encode_adc, encode_status
+from protocol.frames import frames_from_raw
+from protocol.layout import DEFAULT_BASE
+from protocol.records import AdcSample, BoardStatus, RawFrame
+
+
+def adc(ch: int, counter: int, code: int, ts: int, t: float, status: int = 0, base: int = DEFAULT_BASE) -> RawFrame:
+    can_id, data = encode_adc(AdcSample(ch, counter % 256, code, status, ts % 65536), base)
+    return RawFrame(t, can_id, data)
+
+
+def status_frame(rate: int, t: float, counter: int = 0, base: int = DEFAULT_BASE) -> RawFrame:
+    can_id, data = encode_status(BoardStatus(counter % 256, 1, rate, 25, 120, 0), base)
+    return RawFrame(t, can_id, data)
+
+
+def instant(k: int, codes: tuple[int, int, int] = (100, 200, 300), rate: int = 200, t0: float = 0.0,
+            counter0: int = 0, ts0: int = 0) -> list[RawFrame]:
+    """The three frames of sampling instant k, ch1 first, at `rate` Hz."""
+    period_ticks = 10000 // rate
+    ts = ts0 + k * period_ticks
+    t = t0 + k / rate
+    return [adc(ch, counter0 + k, codes[ch - 1], ts, t + ch * 1e-4) for ch in (1, 2, 3)]
+
+
+def pack(frames: list[RawFrame]) -> np.ndarray:
+    return frames_from_raw(frames)
