@@ -45,6 +45,28 @@ SAMPLE_DTYPE = np.dtype(
 _NONE = np.iinfo(np.int64).min // 4
 
 
+def _first_of_each(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique values, index of each one's first occurrence); O(N) when ``a`` is sorted,
+    as it is for an in-order stream, else np.unique's sort."""
+    if len(a) == 0:
+        return a, np.zeros(0, dtype=np.intp)
+    if len(a) < 2 or bool(np.all(a[1:] >= a[:-1])):
+        first = np.flatnonzero(np.concatenate(([True], a[1:] != a[:-1])))
+        return a[first], first
+    return np.unique(a, return_index=True)
+
+
+def _last_of_each(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique values, index of each one's last occurrence)."""
+    if len(a) == 0:
+        return a, np.zeros(0, dtype=np.intp)
+    if len(a) < 2 or bool(np.all(a[1:] >= a[:-1])):
+        last = np.flatnonzero(np.concatenate((a[1:] != a[:-1], [True])))
+        return a[last], last
+    u, rev = np.unique(a[::-1], return_index=True)
+    return u, len(a) - 1 - rev
+
+
 def usable(samples: np.ndarray) -> np.ndarray:
     """(N, 3) bool: channel present and none of status bits 0..3 set."""
     return samples["present"] & ((samples["status"] & STATUS_FAULT_MASK) == 0)
@@ -135,8 +157,9 @@ class Assembler:
         max_before = np.concatenate(([self.max_n], running[:-1]))
         late = max_before >= n + WINDOW
         key = n * 4 + ch
-        fresh = np.flatnonzero(~late & ~np.isin(key, self._accepted_keys()))
-        _, first = np.unique(key[fresh], return_index=True)
+        known = self._accepted_keys()
+        fresh = np.flatnonzero(~late & ~np.isin(key, known)) if len(known) else np.flatnonzero(~late)
+        _, first = _first_of_each(key[fresh])
         acc = np.zeros(len(n), dtype=bool)
         acc[fresh[first]] = True
         dup = ~late & ~acc
@@ -185,18 +208,19 @@ class Assembler:
     def _merge(self, n, ch, code, status, big_t, tt, seq) -> None:
         if len(n) == 0:
             return
-        uniq = np.union1d(self._open["n"], n)
+        uniq, _ = _first_of_each(np.concatenate((self._open["n"], n)))
         table = np.zeros(len(uniq), dtype=SAMPLE_DTYPE)
         table["n"] = uniq
         table[np.searchsorted(uniq, self._open["n"])] = self._open
         pos = np.searchsorted(uniq, n)
-        is_new = ~np.isin(uniq, self._open["n"])
-        first_pos, first_idx = np.unique(pos, return_index=True)
+        is_new = np.ones(len(uniq), dtype=bool)
+        is_new[np.searchsorted(uniq, self._open["n"])] = False
+        first_pos, first_idx = _first_of_each(pos)
         newrow = is_new[first_pos]
         table["ticks"][first_pos[newrow]] = big_t[first_idx[newrow]]
-        last_pos, last_rev = np.unique(pos[::-1], return_index=True)
-        table["t"][last_pos] = tt[len(tt) - 1 - last_rev]
-        table["seq"][last_pos] = seq[len(seq) - 1 - last_rev]
+        last_pos, last_idx = _last_of_each(pos)
+        table["t"][last_pos] = tt[last_idx]
+        table["seq"][last_pos] = seq[last_idx]
         col = ch - 1
         table["code"][pos, col] = code
         table["status"][pos, col] = status

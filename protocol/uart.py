@@ -180,7 +180,7 @@ class Deframer:
         self.bytes_in += len(chunk)
         *complete, rest = chunk.split(DELIMITER)
         for k, body in enumerate(complete):
-            if k == 99:
+            if k == 0:
                 if self._discarding:  # end of a runaway: already reported
                     self._discarding = False
                     self.discarded += len(body)

@@ -1,0 +1,287 @@
+"""Players: put a simulation on a python-can bus or a pseudo-terminal in real time, or into a
+file as fast as possible. This is the emulator's imperative shell; the model stays pure.
+
+Real-time players are threads that send each frame (or UART packet) at
+``start + (t - t0) / speed``; when they fall behind (a GC pause, a slow bus) they send what is
+due at once rather than drifting late for the rest of the run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+import select
+import struct
+import termios
+import threading
+import time
+import tty
+from pathlib import Path
+
+import numpy as np
+
+from bench.errors import BenchError
+from devices.emulator.scenario import Scenario, load_scenario
+from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
+
+
+class _PacedPlayer(threading.Thread):
+    """Emits items i..j whose relative times have come; subclasses define :meth:`_emit`."""
+
+    def __init__(self, times_s: np.ndarray, speed: float, name: str) -> None:
+        super().__init__(name=name, daemon=True)
+        if not speed > 0:
+            raise BenchError(f"--speed must be > 0, got {speed!r}")
+        self._times = np.ascontiguousarray(times_s, dtype=np.float64)
+        self.speed = float(speed)
+        self._halt = threading.Event()
+        self._started_at: float | None = None
+        self._next = 0
+        self.error: BaseException | None = None
+
+    def _emit(self, i: int, j: int) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        pass
+
+    def run(self) -> None:
+        times, n = self._times, len(self._times)
+        self._started_at = time.perf_counter()
+        try:
+            while self._next < n and not self._halt.is_set():
+                now = (time.perf_counter() - self._started_at) * self.speed
+                j = int(np.searchsorted(times, now, side="right"))
+                if j > self._next:
+                    j = min(j, self._next + 4096)  # stay responsive to stop()
+                    self._emit(self._next, j)
+                    self._next = j
+                else:
+                    self._halt.wait(min((times[self._next] - now) / self.speed, 0.05))
+        except BaseException as exc:  # reported to the caller, never lost in the thread
+            self.error = exc
+        finally:
+            self._close()
+
+    @property
+    def progress_s(self) -> float:
+        """How far into the run (scenario seconds) the player is."""
+        if self._started_at is None:
+            return 0.0
+        if not self.is_alive():
+            return float(self._times[self._next - 1]) if self._next else 0.0
+        return (time.perf_counter() - self._started_at) * self.speed
+
+    @property
+    def done(self) -> bool:
+        """True once the thread has finished (everything sent, stopped, or failed)."""
+        return self._started_at is not None and not self.is_alive()
+
+    @property
+    def items_total(self) -> int:
+        return len(self._times)
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until done (or timeout); True when done."""
+        self.join(timeout)
+        return not self.is_alive()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop sending and release the bus or pty. Safe to call twice or before start."""
+        self._halt.set()
+        if self.is_alive():
+            self.join(timeout)
+        elif self._started_at is None:
+            self._close()
+
+
+class CanPlayer(_PacedPlayer):
+    """Plays ``sim.frames`` on a python-can bus in real time.
+
+    Send errors (bus off, buffer full) are counted in ``errors`` and play goes on; a frame
+    that failed is not retried, as a real board would not retry it either.
+    """
+
+    def __init__(
+        self, sim: Simulation, bus: object, *, speed: float = 1.0, own_bus: bool = True
+    ) -> None:
+        super().__init__(sim.frames["t"] - sim.t0, speed, name="virtual-board-can")
+        self.simulation = sim
+        self.bus = bus
+        self._own_bus = own_bus
+        self.frames_sent = 0
+        self.errors = 0
+        self.last_error = ""
+
+    def _emit(self, i: int, j: int) -> None:
+        import can
+
+        f = self.simulation.frames
+        ids = f["id"][i:j].tolist()
+        payload = f["data"][i:j].tobytes()
+        send = self.bus.send  # type: ignore[attr-defined]
+        for k, can_id in enumerate(ids):
+            msg = can.Message(
+                arbitration_id=can_id, data=payload[8 * k : 8 * k + 8], is_extended_id=False
+            )
+            try:
+                send(msg, timeout=0.05)
+                self.frames_sent += 1
+            except (can.CanError, OSError) as exc:
+                self.errors += 1
+                self.last_error = str(exc)
+                if self._halt.wait(0.001):
+                    return
+
+    def _close(self) -> None:
+        if self._own_bus:
+            with contextlib.suppress(Exception):
+                self.bus.shutdown()  # type: ignore[attr-defined]
+
+
+class PtyPlayer(_PacedPlayer):
+    """Writes the UART byte stream to a pseudo-terminal in real time.
+
+    A reader opens ``slave_path`` like a serial port. The slave is put in raw mode so the
+    tty layer neither echoes nor rewrites bytes. When nobody reads and the pty buffer is
+    full, the stale bytes are flushed and counted in ``bytes_discarded``: like a real UART,
+    the board never waits for a listener.
+    """
+
+    def __init__(self, stream: UartStream, t0: float, *, speed: float = 1.0) -> None:
+        super().__init__(stream.packet_t - t0, speed, name="virtual-board-pty")
+        self.stream = stream
+        self.master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self.master, False)
+        self.slave_path = os.ttyname(self._slave)
+        self.packets_written = 0
+        self.bytes_written = 0
+        self.bytes_discarded = 0
+        self._closed = False
+
+    @property
+    def frames_sent(self) -> int:
+        return self.packets_written
+
+    def _emit(self, i: int, j: int) -> None:
+        ends = self.stream.packet_end
+        lo = int(ends[i - 1]) if i else 0
+        chunk = memoryview(self.stream.data)[lo : int(ends[j - 1])]
+        while len(chunk) and not self._halt.is_set():
+            try:
+                n = os.write(self.master, chunk)
+                self.bytes_written += n
+                chunk = chunk[n:]
+            except BlockingIOError:
+                _, writable, _ = select.select([], [self.master], [], 0.2)
+                if not writable:  # nobody is reading: drop the stale bytes, keep going
+                    pending = struct.unpack(
+                        "i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+                    )[0]
+                    termios.tcflush(self._slave, termios.TCIFLUSH)
+                    self.bytes_discarded += pending
+            except OSError as exc:
+                if exc.errno != errno.EIO:
+                    raise
+                return
+        self.packets_written += j - i
+
+    def _close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            for fd in (self.master, self._slave):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+
+
+def open_bus(interface: str, channel: str) -> object:
+    """A python-can bus, or a BenchError naming the interface when it cannot be opened."""
+    import can
+
+    try:
+        return can.Bus(interface=interface, channel=channel)
+    except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
+        raise BenchError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
+
+
+def _as_simulation(scenario: Scenario | Simulation | str | Path) -> Simulation:
+    if isinstance(scenario, Simulation):
+        return scenario
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    return simulate(scenario)
+
+
+def start_virtual_board(
+    scenario: Scenario | Simulation | str | Path, channel_name: str, *, speed: float = 1.0
+) -> CanPlayer:
+    """Start the virtual board on python-can's in-process ``virtual`` interface.
+
+    The receiver opens its own ``can.Bus(interface="virtual", channel=channel_name)`` --
+    before calling this, or it misses the first frames. Returns the running player: it has
+    ``frames_sent``, ``errors``, ``done``, ``progress_s``, ``simulation`` and ``stop()``.
+    """
+    sim = _as_simulation(scenario)
+    player = CanPlayer(sim, open_bus("virtual", channel_name), speed=speed, own_bus=True)
+    player.start()
+    return player
+
+
+# ----------------------------------------------------------------------------- file output
+
+
+def write_output(sim: Simulation, path: str | Path) -> str:
+    """Write the run to a file as fast as possible; the kind follows the suffix.
+
+    .log: candump text of the CAN frames; .bin: raw UART byte stream with UART faults;
+    .mcap: via bench.mcaplog.writer.write_emulation (when installed). Returns a summary line.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".log":
+            try:
+                from devices.writers import write_candump
+            except ImportError as exc:
+                raise BenchError(f"candump output needs devices.writers ({exc})") from None
+            write_candump(p, sim.frames)
+            return f"wrote {len(sim.frames)} CAN frames to {p}"
+        if suffix == ".bin":
+            stream = sim.uart_stream()
+            p.write_bytes(stream.data)
+            return (
+                f"wrote {len(stream)} UART packets ({len(stream.data)} bytes, "
+                f"{stream.packets_broken} broken by UART faults) to {p}"
+            )
+        if suffix == ".mcap":
+            try:
+                from bench.mcaplog.writer import write_emulation  # type: ignore[import-not-found]
+            except ImportError:
+                raise BenchError(
+                    "mcap output needs bench.mcaplog.writer.write_emulation, which is not "
+                    "installed yet; write .log or .bin instead"
+                ) from None
+            write_emulation(p, sim)
+            return f"wrote {len(sim.frames)} frames to {p}"
+    except OSError as exc:
+        raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
+    raise BenchError(f"{p}: unknown output type {suffix or '(none)'!r} (expected .log, .bin or .mcap)")
+
+
+def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:
+    """The truth as CSV: time_s, counter, gradient_permil, accel_mps2, speed_mps, position_m."""
+    p = Path(path)
+    try:
+        np.savetxt(
+            p,
+            np.column_stack([truth[c] for c in TRUTH_COLUMNS]),
+            fmt=["%.6f", "%d", "%.12g", "%.12g", "%.12g", "%.12g"],
+            delimiter=",",
+            header=",".join(TRUTH_COLUMNS),
+            comments="",
+        )
+    except OSError as exc:
+        raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None

@@ -1,0 +1,263 @@
+"""Open a recorded log as a :class:`FileSource`, chosen by the file's extension.
+
+* ``.log``  candump ``-L`` text, the fast vectorised reader (:mod:`devices.candump`)
+* ``.asc`` ``.blf`` ``.trc`` ``.csv``  python-can's LogReader, batched
+* ``.bin``  raw UART capture (COBS packets), ``t`` = NaN (the UART carries no time)
+* ``.mcap`` the bench's own recordings (:mod:`devices.mcap_file`, imported lazily)
+
+Operator mistakes (missing file, unknown extension, unreadable or not-a-log file) are one
+:class:`BenchError` line at open time; corruption found while reading ends the stream
+with a "truncated" notice after every frame read before it. python-can readers raise
+anything from struct.error to AssertionError on bad input, so they are wrapped whole.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+from can.io.blf import OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
+
+from bench.errors import BenchError
+from devices.base import FileSource, SourceBatch, SourceNotice
+from devices.bus import frames_from_messages, one_line
+from devices.candump import CandumpFileSource
+from protocol.frames import empty_frames
+from protocol.uart import MAX_BODY, deframe_bytes
+
+UART_CHUNK_BYTES = 4 << 20
+CAN_LOGREADER_SUFFIXES = (".asc", ".blf", ".trc", ".csv")
+SUFFIXES = (".log", *CAN_LOGREADER_SUFFIXES, ".bin", ".mcap")
+
+
+def _check_readable(path: Path) -> int:
+    """Size of a readable regular file, else a one-line BenchError naming it."""
+    try:
+        if path.is_dir():
+            raise BenchError(f"cannot read log {path}: is a directory")
+        size = path.stat().st_size
+        with path.open("rb"):
+            pass
+    except FileNotFoundError as exc:
+        raise BenchError(f"log file not found: {path}") from exc
+    except OSError as exc:
+        raise BenchError(f"cannot read log {path}: {exc.strerror or exc}") from exc
+    return size
+
+
+def open_log(path: str | os.PathLike[str], **kwargs: Any) -> FileSource:
+    """The FileSource for ``path`` by extension (case-insensitive). ``kwargs`` go to the
+    source (e.g. ``chunk_bytes``)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in SUFFIXES:
+        known = " ".join(SUFFIXES)
+        raise BenchError(f"cannot read log {p}: unknown extension {suffix or '(none)'!r} ({known})")
+    _check_readable(p)
+    if suffix == ".log":
+        return CandumpFileSource(p, **kwargs)
+    if suffix == ".bin":
+        return UartCaptureSource(p, **kwargs)
+    if suffix == ".mcap":
+        return _open_mcap(p, **kwargs)
+    return CanLogReaderSource(p, **kwargs)
+
+
+def _open_mcap(path: Path, **kwargs: Any) -> FileSource:
+    try:
+        module = importlib.import_module("devices.mcap_file")
+    except ModuleNotFoundError as exc:
+        if exc.name not in ("devices.mcap_file", "devices"):
+            raise BenchError(f"cannot read {path}: missing dependency {exc.name}") from exc
+        raise BenchError(
+            f"cannot read {path}: MCAP support (devices.mcap_file) is missing"
+        ) from exc
+    try:
+        return module.McapFrameSource(path, **kwargs)
+    except BenchError:
+        raise
+    except Exception as exc:
+        raise BenchError(f"cannot read {path}: {one_line(exc)}") from exc
+
+
+class _GuardedBLFReader(BLFReader):
+    """BLFReader that refuses objects shorter than their own header.
+
+    python-can's inner loop never advances past an object whose size field is 0, so a
+    corrupt file would spin forever (python-can issue #1584); here it is a BLFParseError.
+    """
+
+    def _parse_data(self, data: bytes) -> Iterator[can.Message]:
+        pos, end, header = 0, len(data), OBJ_HEADER_BASE_STRUCT.size
+        while True:
+            at = data.find(b"LOBJ", pos, pos + 8)
+            if at < 0 or at + header > end:
+                break
+            obj_size = OBJ_HEADER_BASE_STRUCT.unpack_from(data, at)[3]
+            if obj_size < header:
+                raise BLFParseError(f"object of size {obj_size} at offset {at}")
+            if at + obj_size > end:
+                break
+            pos = at + obj_size
+        yield from super()._parse_data(data)
+
+
+_READERS = {".blf": _GuardedBLFReader}
+
+
+class CanLogReaderSource(FileSource):
+    """A .asc/.blf/.trc/.csv log through python-can's readers, in batches of frames."""
+
+    def __init__(self, path: str | os.PathLike[str], **reader_kwargs: Any) -> None:
+        self.path = Path(path)
+        self.description = f"{self.path.suffix.lstrip('.')} log {self.path}"
+        self._size = _check_readable(self.path)
+        self._kwargs = reader_kwargs
+        self._pos = 0
+        self.frames = 0
+        self._reader: can.io.generic.MessageReader | None = self._open()
+
+    def _open(self) -> can.io.generic.MessageReader:
+        """Open the reader now, so a file that is not this format fails at open time."""
+        cls = _READERS.get(self.path.suffix.lower())
+        try:
+            if cls is not None:
+                return cls(self.path, **self._kwargs)
+            return can.LogReader(self.path, **self._kwargs)
+        except Exception as exc:  # python-can raises struct.error, ValueError, Unicode...
+            raise BenchError(f"cannot read log {self.path}: {one_line(exc)}") from exc
+
+    def size_bytes(self) -> int:
+        return self._size
+
+    def position(self) -> int:
+        return self._pos
+
+    def _tell(self, reader: can.io.generic.MessageReader) -> None:
+        f = getattr(reader, "file", None)
+        raw = getattr(f, "buffer", f)  # a text file cannot tell() while iterated
+        try:
+            self._pos = int(raw.tell())  # type: ignore[union-attr]
+        except (AttributeError, OSError, ValueError):
+            pass
+
+    def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
+        max_frames = max(1, int(max_frames))
+        reader = self._reader if self._reader is not None else self._open()
+        self._reader = None
+        self._pos = self.frames = 0
+        msgs: list[can.Message] = []
+        try:
+            for msg in reader:
+                msgs.append(msg)
+                if len(msgs) >= max_frames:
+                    self._tell(reader)
+                    self.frames += len(msgs)
+                    yield SourceBatch(frames_from_messages(msgs))
+                    msgs = []
+        except Exception as exc:  # any reader failure mid-file: keep what was read
+            self.frames += len(msgs)
+            where = f"after {self.frames} frames"
+            notice = SourceNotice(math.nan, "truncated", f"{self.path}: {where}: {one_line(exc)}")
+            yield SourceBatch(frames_from_messages(msgs), [], [notice])
+            return
+        finally:
+            reader.stop()
+        self._pos = self._size
+        self.frames += len(msgs)
+        if msgs:
+            yield SourceBatch(frames_from_messages(msgs))
+
+    def close(self) -> None:
+        if self._reader is not None:
+            self._reader.stop()
+            self._reader = None
+
+
+class UartCaptureSource(FileSource):
+    """A raw UART capture (.bin): the byte stream the board sent, decoded in large chunks.
+
+    Chunks are cut after their last 0x00 so no packet straddles two decodes; the result is
+    the same as one :class:`protocol.uart.Deframer` fed the whole file and flushed.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], chunk_bytes: int = UART_CHUNK_BYTES) -> None:
+        self.path = Path(path)
+        self.description = f"UART capture {self.path}"
+        self._size = _check_readable(self.path)
+        self.chunk_bytes = max(1, int(chunk_bytes))
+        self._pos = 0
+        self.frames = 0
+        self.link_errors = 0
+
+    def size_bytes(self) -> int:
+        return self._size
+
+    def position(self) -> int:
+        return self._pos
+
+    def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
+        max_frames = max(1, int(max_frames))
+        self._pos = self.frames = self.link_errors = 0
+        nan = math.nan
+        try:
+            f = self.path.open("rb")
+        except OSError as exc:
+            raise BenchError(f"cannot read log {self.path}: {exc.strerror or exc}") from exc
+        with f:
+            carry = b""
+            discarding = False  # inside a runaway packet already reported
+            while True:
+                try:
+                    chunk = f.read(self.chunk_bytes)
+                except OSError as exc:
+                    detail = f"{self.path}: read failed after {self._pos} bytes: {exc}"
+                    yield SourceBatch(notices=[SourceNotice(nan, "truncated", detail)])
+                    return
+                if not chunk:
+                    break
+                data, carry = carry + chunk, b""
+                if discarding:
+                    z = data.find(b"\0")
+                    if z < 0:
+                        self._pos = f.tell()
+                        continue
+                    data, discarding = data[z + 1 :], False
+                cut = data.rfind(b"\0") + 1
+                frames, errors = deframe_bytes(data[:cut], nan) if cut else (empty_frames(), [])
+                rest = data[cut:]
+                if len(rest) > MAX_BODY:  # no delimiter within MAX_BODY: report, skip to next
+                    errors += deframe_bytes(rest[: MAX_BODY + 1], nan)[1]
+                    discarding = True
+                else:
+                    carry = rest
+                self._pos = f.tell() - len(carry)
+                yield from self._emit(frames, errors, max_frames)
+            if carry:  # the last packet never got its 0x00
+                yield from self._emit(empty_frames(), deframe_bytes(carry, nan)[1], max_frames)
+            self._pos = self._size
+
+    def _emit(self, frames: np.ndarray, errors: list, max_frames: int) -> Iterator[SourceBatch]:
+        self.frames += len(frames)
+        self.link_errors += len(errors)
+        if not len(frames):
+            if errors:
+                yield SourceBatch(empty_frames(), errors)
+            return
+        for b in range(0, len(frames), max_frames):
+            # link errors of a chunk ride with its first batch: they carry no position
+            yield SourceBatch(frames[b : b + max_frames], errors if b == 0 else [])
+
+
+__all__ = [
+    "CanLogReaderSource",
+    "CandumpFileSource",
+    "UartCaptureSource",
+    "open_log",
+]
