@@ -13,9 +13,12 @@ anything from struct.error to AssertionError on bad input, so they are wrapped w
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import math
 import os
+import struct
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -109,6 +112,8 @@ class _GuardedBLFReader(BLFReader):
 
 
 _READERS = {".blf": _GuardedBLFReader}
+_TRUNCATION_ERRORS = (struct.error, EOFError, zlib.error, BLFParseError)
+"""Reader failures that mean the file ends (or breaks) early rather than bad text."""
 
 
 class CanLogReaderSource(FileSource):
@@ -142,10 +147,8 @@ class CanLogReaderSource(FileSource):
     def _tell(self, reader: can.io.generic.MessageReader) -> None:
         f = getattr(reader, "file", None)
         raw = getattr(f, "buffer", f)  # a text file cannot tell() while iterated
-        try:
+        with contextlib.suppress(AttributeError, OSError, ValueError):
             self._pos = int(raw.tell())  # type: ignore[union-attr]
-        except (AttributeError, OSError, ValueError):
-            pass
 
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         max_frames = max(1, int(max_frames))
@@ -163,9 +166,11 @@ class CanLogReaderSource(FileSource):
                     msgs = []
         except Exception as exc:  # any reader failure mid-file: keep what was read
             self.frames += len(msgs)
-            where = f"after {self.frames} frames"
-            notice = SourceNotice(math.nan, "truncated", f"{self.path}: {where}: {one_line(exc)}")
-            yield SourceBatch(frames_from_messages(msgs), [], [notice])
+            kind = "truncated" if isinstance(exc, _TRUNCATION_ERRORS) else "parse_error"
+            detail = f"{self.path}: reading stopped after {self.frames} frames: {one_line(exc)}"
+            yield SourceBatch(
+                frames_from_messages(msgs), [], [SourceNotice(math.nan, kind, detail)]
+            )
             return
         finally:
             reader.stop()
@@ -173,6 +178,10 @@ class CanLogReaderSource(FileSource):
         self.frames += len(msgs)
         if msgs:
             yield SourceBatch(frames_from_messages(msgs))
+        elif not self.frames and self._size:
+            # python-can's ASC reader skips every line it does not recognise
+            detail = f"{self.path}: no CAN frames found (not a {self.path.suffix} log?)"
+            yield SourceBatch(notices=[SourceNotice(math.nan, "parse_error", detail)])
 
     def close(self) -> None:
         if self._reader is not None:

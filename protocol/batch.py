@@ -12,6 +12,7 @@ import numpy as np
 
 from protocol.crc import frame_crc8_batch
 from protocol.layout import DEFAULT_BASE, FRAME_DLC, SPEED_REF_ID, FrameKind, Outcome
+from protocol.records import NOT_BOARD_FLAGS
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,9 +47,11 @@ def decode_batch(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
     d = np.ascontiguousarray(frames["data"])
     n = len(ids)
     offset = ids - base
-    is_adc = (offset >= 1) & (offset <= 3)
-    is_status = offset == 0
-    is_speed = ids == SPEED_REF_ID
+    # the board sends only 11-bit data frames: extended, remote and error frames are foreign
+    foreign = (frames["flags"] & NOT_BOARD_FLAGS) != 0
+    is_adc = (offset >= 1) & (offset <= 3) & ~foreign
+    is_status = (offset == 0) & ~foreign
+    is_speed = (ids == SPEED_REF_ID) & ~foreign
     kind = np.full(n, FrameKind.OTHER, dtype=np.uint8)
     kind[is_adc] = FrameKind.ADC
     kind[is_status] = FrameKind.STATUS

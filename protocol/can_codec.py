@@ -19,6 +19,7 @@ from protocol.layout import (
     classify_id,
 )
 from protocol.records import (
+    NOT_BOARD_FLAGS,
     AdcSample,
     BoardStatus,
     CrcMismatch,
@@ -68,10 +69,15 @@ def encode_speed(ref: SpeedRef) -> tuple[int, bytes]:
     return SPEED_REF_ID, _seal(SPEED_REF_ID, body)
 
 
-def decode(can_id: int, data: bytes, base: int = DEFAULT_BASE) -> Record | DecodeError:
-    """Decode one frame. Never raises for bad bytes: failures come back as DecodeError."""
+def decode(
+    can_id: int, data: bytes, base: int = DEFAULT_BASE, flags: int = 0
+) -> Record | DecodeError:
+    """Decode one frame. Never raises for bad bytes: failures come back as DecodeError.
+
+    ``flags`` (protocol.records.FLAG_*): extended, remote and error frames are never the board's.
+    """
     kind, channel = classify_id(can_id, base)
-    if kind is FrameKind.OTHER:
+    if kind is FrameKind.OTHER or flags & NOT_BOARD_FLAGS:
         return UnknownId(Outcome.UNKNOWN_ID, can_id, f"id 0x{can_id:03X}")
     if len(data) != FRAME_DLC:
         return WrongDlc(Outcome.WRONG_DLC, can_id, f"dlc {len(data)}, expected {FRAME_DLC}")

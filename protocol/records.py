@@ -27,6 +27,8 @@ FLAG_ERROR = 0x04
 FLAG_FD = 0x08
 FLAG_UART = 0x10
 """The frame arrived as a UART packet rather than on CAN."""
+NOT_BOARD_FLAGS = FLAG_EXTENDED | FLAG_REMOTE | FLAG_ERROR
+"""Frames with any of these flags cannot come from the board (11-bit data frames only)."""
 
 
 class LinkError(NamedTuple):

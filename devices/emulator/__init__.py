@@ -13,7 +13,6 @@ Players put a simulation on a python-can bus, a pseudo-terminal or a file; see
 from devices.emulator.player import (
     CanPlayer,
     PtyPlayer,
-    open_bus,
     start_virtual_board,
     write_output,
     write_truth_csv,
@@ -51,7 +50,6 @@ __all__ = [
     "builtin_scenarios",
     "calibration_toml",
     "load_scenario",
-    "open_bus",
     "parse_scenario",
     "scenario_from_dict",
     "simulate",

@@ -197,14 +197,13 @@ class PtyPlayer(_PacedPlayer):
                     os.close(fd)
 
 
-def open_bus(interface: str, channel: str) -> object:
-    """A python-can bus, or a BenchError naming the interface when it cannot be opened."""
+def _open_virtual(channel: str) -> object:
     import can
 
     try:
-        return can.Bus(interface=interface, channel=channel)
-    except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
-        raise BenchError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
+        return can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    except (can.CanError, OSError, ValueError) as exc:
+        raise BenchError(f"cannot open virtual CAN channel {channel!r}: {exc}") from None
 
 
 def _as_simulation(scenario: Scenario | Simulation | str | Path) -> Simulation:
@@ -225,7 +224,7 @@ def start_virtual_board(
     ``frames_sent``, ``errors``, ``done``, ``progress_s``, ``simulation`` and ``stop()``.
     """
     sim = _as_simulation(scenario)
-    player = CanPlayer(sim, open_bus("virtual", channel_name), speed=speed, own_bus=True)
+    player = CanPlayer(sim, _open_virtual(channel_name), speed=speed, own_bus=True)
     player.start()
     return player
 

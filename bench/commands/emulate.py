@@ -1,0 +1,177 @@
+"""`bench emulate`: run the virtual ACB-3 board from a scenario file.
+
+Either into a file as fast as possible (--out: .log candump, .bin raw UART, .mcap), or in
+real time on a CAN interface (--interface/--channel) or a pseudo-terminal (--pty), so the
+bench (or anything else) can listen to it like to the real board.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shutil
+import sys
+from typing import Any
+
+import numpy as np
+
+from bench.errors import BenchError
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "emulate",
+        help="run the virtual ACB-3 board from a scenario (file or real time)",
+        description=(
+            "Simulate the ACB-3 board from a scenario TOML and write the frames to a file "
+            "(--out) or play them in real time on a CAN bus or a pseudo-terminal. "
+            "See docs/EMULATOR.md and devices/scenarios/example.toml."
+        ),
+    )
+    p.add_argument(
+        "scenario",
+        nargs="?",
+        metavar="SCENARIO",
+        help="scenario TOML file, or the name of a built-in scenario (see --list)",
+    )
+    p.add_argument(
+        "--out",
+        metavar="FILE",
+        help="write the run to FILE as fast as possible: .log (candump), .bin (raw UART bytes, "
+        "UART faults applied) or .mcap",
+    )
+    p.add_argument(
+        "--truth",
+        metavar="CSV",
+        help="write the truth per sampling instant (time_s, counter, gradient_permil, "
+        "accel_mps2, speed_mps, position_m)",
+    )
+    p.add_argument("--interface", "-i", help="python-can interface to play on (e.g. socketcan)")
+    p.add_argument("--channel", "-c", help="python-can channel to play on (e.g. vcan0)")
+    p.add_argument("--bitrate", type=int, help="bit rate, where the interface needs one")
+    p.add_argument(
+        "--pty", action="store_true", help="play the UART byte stream on a new pseudo-terminal"
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="FACTOR",
+        help="real-time factor (2 = twice as fast); default 1",
+    )
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("--quiet", "-q", action="store_true", help="no status line")
+    p.add_argument("--list", action="store_true", help="list the built-in scenarios and exit")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from devices.emulator import builtin_scenarios, load_scenario, simulate, write_truth_csv
+
+    if args.list:
+        for name in builtin_scenarios():
+            print(f"{name:<18} {load_scenario(name).description}")
+        return 0
+    if not args.scenario:
+        raise BenchError("give a SCENARIO (a TOML file or a built-in name; --list shows them)")
+    realtime = bool(args.interface or args.channel or args.pty)
+    if args.out and realtime:
+        raise BenchError("--out writes a file as fast as possible; drop --interface/--channel/--pty")
+    if args.pty and (args.interface or args.channel):
+        raise BenchError("choose one of --pty and --interface/--channel")
+    if not (args.out or realtime or args.truth):
+        raise BenchError("nothing to do: give --out FILE, --interface/--channel, --pty or --truth")
+    if not (math.isfinite(args.speed) and args.speed > 0):
+        raise BenchError(f"--speed must be a positive number, got {args.speed!r}")
+
+    sc = load_scenario(args.scenario)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise BenchError(f"--seed must be >= 0, got {args.seed}")
+        sc = sc.with_changes(seed=args.seed)
+    sim = simulate(sc)
+    if args.truth:
+        write_truth_csv(args.truth, sim.truth)
+        print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
+    if args.out:
+        from devices.emulator import write_output
+
+        print(write_output(sim, args.out))
+        if not args.quiet:
+            print(sim.summary())
+        return 0
+    if not realtime:
+        return 0
+    return _play(args, sim)
+
+
+def _play(args: argparse.Namespace, sim: Any) -> int:
+    from devices.emulator import CanPlayer, PtyPlayer
+
+    if args.pty:
+        player: Any = PtyPlayer(sim.uart_stream(), sim.t0, speed=args.speed)
+        print(f"virtual board UART on {player.slave_path} (921600 8N1); Ctrl-C stops", flush=True)
+        unit = "packets"
+    else:
+        from devices.bus import describe_config, open_bus, resolve_bus_config
+
+        config = resolve_bus_config(args.interface, args.channel, args.bitrate)
+        player = CanPlayer(sim, open_bus(config), speed=args.speed, own_bus=True)
+        print(f"virtual board on {describe_config(config)}; Ctrl-C stops", flush=True)
+        unit = "frames"
+    live = sys.stderr.isatty() and not args.quiet
+    player.start()
+    try:
+        while not player.wait(0.25):
+            if live:
+                _status(_status_line(player, sim, unit))
+    except KeyboardInterrupt:
+        player.stop()
+        if live:
+            _status("")
+        print(f"stopped at {player.progress_s:.1f} s: {_counts(player, unit)}", flush=True)
+        return 130
+    finally:
+        player.stop()
+    if live:
+        _status("")
+    if player.error is not None:
+        raise BenchError(f"virtual board stopped: {player.error}")
+    print(f"done: {_counts(player, unit)}", flush=True)
+    return 0
+
+
+def _counts(player: Any, unit: str) -> str:
+    text = f"{player.frames_sent} of {player.items_total} {unit} sent"
+    if getattr(player, "errors", 0):
+        text += f", {player.errors} send errors (last: {player.last_error})"
+    if getattr(player, "bytes_discarded", 0):
+        text += f", {player.bytes_discarded} bytes discarded (no reader)"
+    return text
+
+
+def _status_line(player: Any, sim: Any, unit: str) -> str:
+    sc = sim.scenario
+    now = min(player.progress_s, sc.duration_s)
+    k = min(int(np.searchsorted(sim.truth["time_s"] - sim.t0, now)), len(sim.truth) - 1)
+    row = sim.truth[k]
+    active = [
+        f"{'ch' if isinstance(f.target, int) else ''}{f.target} {f.kind}"
+        for f in sc.faults
+        if f.start_s <= now < f.end_s
+    ]
+    line = (
+        f"{now:7.1f}/{sc.duration_s:g} s  {player.frames_sent} {unit}"
+        f"  v {row['speed_mps']:6.2f} m/s  grade {row['gradient_permil']:+7.2f} permil"
+    )
+    if getattr(player, "errors", 0):
+        line += f"  {player.errors} errors"
+    if active:
+        line += "  faults: " + ", ".join(active)
+    return line
+
+
+def _status(text: str) -> None:
+    width = shutil.get_terminal_size((100, 20)).columns - 1
+    sys.stderr.write("\r" + text[:width].ljust(width) + ("" if text else "\r"))
+    sys.stderr.flush()

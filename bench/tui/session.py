@@ -1,0 +1,213 @@
+"""What the TUI drives: a running LiveRunner, its source, the MCAP recorder, replay controls.
+
+The App only ever calls these methods and :meth:`Session.snapshot`; it never touches the
+runner's threads. Building a Session (which source, which log file) is the commands' job,
+so the App can be tested with a fixed snapshot and no runner at all.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.live import HISTORY, LiveRunner, Snapshot
+from bench.liveopts import LiveSetup
+from bench.pipeline import StepOutput
+from bench.sinks import Sink
+from bench.tui.replay_source import ReplaySource, ReplayTap
+
+
+class Recorder:
+    """The runner's one recording sink: forwards to the current MCAP sink, if any.
+
+    Starting and stopping a recording swaps the sink behind a lock, so the processing thread
+    never writes to a sink that is being closed, and the runner's own sink list never changes
+    while it runs. When the runner stops it closes the Recorder, which closes the MCAP sink:
+    that is how quitting finalises the file.
+    """
+
+    def __init__(self, open_sink: Callable[[], Any] | None = None, sink: Any = None) -> None:
+        self._open_sink = open_sink
+        self._lock = threading.Lock()
+        self._sink: Any = sink
+        self._closed = False
+        self.last_status: dict[str, Any] | None = None  # of the last file, once stopped
+        self.files: list[Path] = []
+        if sink is not None:
+            self.files.append(Path(sink.path))
+
+    @property
+    def active(self) -> bool:
+        return self._sink is not None
+
+    @property
+    def can_start(self) -> bool:
+        return self._open_sink is not None and not self._closed
+
+    @property
+    def path(self) -> Path | None:
+        s = self._sink
+        return Path(s.path) if s is not None else None
+
+    def start(self) -> Path:
+        """Open a new MCAP file and record into it (BenchError if it cannot be created)."""
+        if self._open_sink is None:
+            raise RuntimeError("this session cannot record")
+        sink = self._open_sink()
+        with self._lock:
+            if self._closed or self._sink is not None:
+                old, self._sink = sink, self._sink
+                with contextlib.suppress(Exception):
+                    old.close()
+                return Path(self._sink.path) if self._sink else Path(sink.path)
+            self._sink = sink
+        self.files.append(Path(sink.path))
+        return Path(sink.path)
+
+    def detach(self) -> Any:
+        """Stop recording; returns the sink, which the caller closes (off the UI thread)."""
+        with self._lock:
+            sink, self._sink = self._sink, None
+        return sink
+
+    def finish(self, sink: Any) -> None:
+        """Close a detached sink and keep its final status for the UI."""
+        if sink is None:
+            return
+        sink.close()
+        with contextlib.suppress(Exception):
+            self.last_status = dict(sink.status())
+
+    def status(self) -> dict[str, Any] | None:
+        s = self._sink
+        if s is None:
+            return None
+        try:
+            return dict(s.status())
+        except Exception as exc:  # the UI must survive a sink that cannot report
+            return {"path": str(getattr(s, "path", "?")), "error": repr(exc)}
+
+    # -- Sink -----------------------------------------------------------------------------
+    def write(self, step: StepOutput) -> None:
+        with self._lock:
+            if self._sink is not None:
+                self._sink.write(step)
+
+    def mark(self, t: float, text: str) -> None:
+        with self._lock:
+            if self._sink is not None:
+                self._sink.mark(t, text)
+
+    def close(self) -> None:
+        with self._lock:
+            sink, self._sink = self._sink, None
+            self._closed = True
+        self.finish(sink)
+
+
+@dataclass
+class Session:
+    """A live or replay run as the TUI sees it."""
+
+    runner: LiveRunner | None
+    recorder: Recorder = field(default_factory=Recorder)
+    setup: LiveSetup | None = None
+    replay: ReplaySource | None = None
+    fixed: Snapshot | None = None  # tests: always show this snapshot
+    on_stop: list[Callable[[], None]] = field(default_factory=list)
+    _stopped: bool = False
+    _stop_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def create(
+        cls,
+        setup: LiveSetup,
+        runner_factory: Callable[[list[Sink]], LiveRunner],
+        open_sink: Callable[[], Any] | None,
+        first_sink: Any = None,
+    ) -> Session:
+        """Wire recorder (and replay tap) into a new runner; the runner is not started."""
+        recorder = Recorder(open_sink, first_sink)
+        replay = setup.source if isinstance(setup.source, ReplaySource) else None
+        sinks: list[Sink] = [recorder]
+        if replay is not None:
+            sinks.insert(0, ReplayTap(replay))
+        runner = runner_factory(sinks)
+        runner.recording = recorder
+        return cls(runner=runner, recorder=recorder, setup=setup, replay=replay)
+
+    @property
+    def mode(self) -> str:
+        return "replay" if self.replay is not None else "live"
+
+    def start(self) -> None:
+        if self.runner is not None:
+            self.runner.start()
+
+    def snapshot(self, last: int = HISTORY) -> Snapshot:
+        if self.fixed is not None or self.runner is None:
+            assert self.fixed is not None, "a session needs a runner or a fixed snapshot"
+            return self.fixed
+        snap = self.runner.snapshot(last)
+        if self.setup is not None and self.setup.emulator is not None:
+            snap.extra["frames_sent"] = getattr(self.setup.emulator, "frames_sent", None)
+            snap.extra["emulator_done"] = bool(getattr(self.setup.emulator, "done", False))
+        if self.replay is not None:
+            snap.extra["replay"] = self.replay.status()
+        if snap.recording is None and self.recorder.last_status is not None:
+            snap.extra["last_recording"] = self.recorder.last_status
+        return snap
+
+    # -- operator actions -----------------------------------------------------------------
+    def mark(self, text: str = "operator mark") -> None:
+        if self.runner is not None:
+            self.runner.mark(text)
+
+    def tolerance(self) -> float:
+        if self.runner is not None:
+            return float(self.runner.pipeline.tolerance_permil)
+        return float(self.fixed.tolerance_permil) if self.fixed is not None else 0.0
+
+    def set_tolerance(self, permil: float) -> None:
+        if self.runner is not None:
+            self.runner.set_tolerance(permil)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the board, the runner (drains and closes every sink: the MCAP summary gets
+        written) and the source. Safe to call twice and from any thread."""
+        with self._stop_lock:
+            if self._stopped:
+                return
+            self._stopped = True
+        setup = self.setup
+        if setup is not None and setup.emulator is not None:
+            with contextlib.suppress(Exception):
+                setup.emulator.stop()
+        if self.runner is not None:
+            self.runner.stop(timeout)
+            self.runner.wait(timeout)
+        if setup is not None:
+            with contextlib.suppress(Exception):
+                setup.close()
+        for fn in self.on_stop:
+            with contextlib.suppress(Exception):
+                fn()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+
+def wait_until(pred: Callable[[], bool], timeout: float, interval: float = 0.02) -> bool:
+    """Poll ``pred`` until true or ``timeout`` s pass (for commands and tests, never the UI)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(interval)
+    return pred()
