@@ -32,15 +32,18 @@ class ChannelCal:
 
 @dataclass(frozen=True, slots=True)
 class EstimatorSettings:
-    """Settings of the bench's own estimator (METHOD.md section 5)."""
+    """Settings of the bench's own estimator (METHOD.md section 5, docs/ESTIMATOR.md)."""
 
-    residual_limit_mps2: float = 0.05  # a channel singled out beyond this is excluded
+    residual_limit_mps2: float = 0.02  # moving-mean residual beyond this singles a channel out
+    residual_window_s: float = 0.1  # the residual's moving mean spans this long
     stuck_window_s: float = 0.5  # no code change for this long while others change
     recover_s: float = 1.0  # healthy for this long before an excluded channel is readmitted
     standstill_s: float = 1.0  # SPEED_REF at 0 for this long -> a_ref exactly 0
     coast_s: float = 0.5  # a_ref held this long after SPEED_REF stops, then unavailable
-    speed_noise_mps: float = 0.005  # Kalman measurement noise (odometer speed)
-    jerk_psd: float = 0.5  # Kalman process noise, (m/s^3)^2/Hz
+    speed_noise_mps: float = 0.003  # Kalman measurement noise (odometer speed), m/s
+    jerk_psd: float = 1e-4  # Kalman process noise (white jerk), (m/s^3)^2/Hz
+    a_ref_sigma_mps2: float = 0.01  # a_ref unavailable while the filter's own 1-sigma exceeds this
+    clock_drift_ppm: float = 1000.0  # how fast a clock offset estimate may rise (ppm of time)
 
 
 @dataclass(frozen=True, slots=True)

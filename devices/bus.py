@@ -28,9 +28,6 @@ BURST_LIMIT = 4096
 FORBIDDEN_INTERFACES = frozenset({"udp_multicast"})
 """Interfaces the bench refuses: udp_multicast would put bench traffic on the site network."""
 
-_BUS_ERRORS = (can.CanError, OSError, ValueError)
-"""What a backend raises when the adapter goes away (ValueError: I/O on a closed handle)."""
-
 
 def one_line(exc: BaseException) -> str:
     """An exception as one line for an operator message (python-can messages can be multi-line)."""
@@ -148,7 +145,8 @@ class CanBusSource(LiveSource):
     Either give interface/channel/bitrate (+ backend kwargs; missing values come from
     python-can's config) and the source opens, owns and reopens the bus, or give an already
     built ``bus`` (e.g. the emulator's ``virtual`` bus), which is never reopened and is shut
-    down on close only when ``owns_bus`` is true.
+    down on close only when ``owns_bus`` is true. ``description`` names the source in
+    notices and the UI (default: the bus settings).
     """
 
     def __init__(
@@ -159,6 +157,7 @@ class CanBusSource(LiveSource):
         *,
         bus: can.BusABC | None = None,
         owns_bus: bool = False,
+        description: str | None = None,
         config_context: str | None = None,
         burst_limit: int = BURST_LIMIT,
         backoff_initial: float = 0.1,
@@ -186,6 +185,8 @@ class CanBusSource(LiveSource):
             self._owns_bus = True
             self._bus = open_bus(self._config)
             self.description = f"can bus {describe_config(self._config)}"
+        if description is not None:
+            self.description = description
 
     @classmethod
     def from_bus(cls, bus: can.BusABC, *, owns_bus: bool = False, **kwargs: Any) -> CanBusSource:
@@ -217,10 +218,9 @@ class CanBusSource(LiveSource):
                     if msg is None:
                         break
                     msgs.append(msg)
-        except _BUS_ERRORS as exc:
-            notices.append(
-                SourceNotice(time.time(), "disconnect", f"{self.description}: {one_line(exc)}")
-            )
+        except Exception as exc:  # CanError, OSError, ...: backends differ, none may escape
+            detail = f"{self.description}: {one_line(exc)}"
+            notices.append(SourceNotice(time.time(), "disconnect", detail))
             self._drop_bus()
         return SourceBatch(frames_from_messages(msgs), [], notices)
 

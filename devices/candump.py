@@ -36,7 +36,7 @@ from devices.bus import frames_from_messages, one_line
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 
-CHUNK_BYTES = 8 << 20
+CHUNK_BYTES = 1 << 20
 """Bytes parsed per step: large enough to amortise numpy overhead, small enough for memory."""
 MAX_FAST_LEN = 512
 """Longer lines (no valid candump line is) go straight to the per-line parser."""
@@ -147,9 +147,19 @@ def _parse_group(a: np.ndarray, starts: np.ndarray, tpl: _Template) -> tuple[np.
     them. Returns (ok mask, columns); columns are meaningful where ok."""
     n = len(starts)
     ok = np.ones(n, dtype=bool)
+    step = int(starts[1] - starts[0]) if n > 1 else 0
+    if n > 1 and step > 0 and (np.diff(starts) == step).all():
+        # consecutive lines of one shape (the usual case): a strided view, no gathers
+        block = np.lib.stride_tricks.as_strided(
+            a[starts[0] :], shape=(n, tpl.length), strides=(step, 1), writeable=False
+        )
 
-    def col(c: int) -> np.ndarray:
-        return a[starts + c]
+        def col(c: int) -> np.ndarray:
+            return block[:, c]
+    else:
+
+        def col(c: int) -> np.ndarray:
+            return a[starts + c]
 
     for c, byte in tpl.seps:
         ok &= col(c) == byte
@@ -349,6 +359,13 @@ def parse_candump_bytes(buf: bytes, first_line: int = 1) -> ParsedChunk:
                 slow_rows.append(pending[:1])
                 pending = pending[1:]
                 continue
+            if ok.all():  # the usual case: no boolean compress
+                target = slice(None) if len(pending) == n else pending
+                for name, values in cols.items():
+                    out[name][target] = values
+                have[target] = True
+                pending = pending[:0]
+                continue
             hit = pending[ok]
             for name, values in cols.items():
                 out[name][hit] = values[ok]
@@ -373,8 +390,10 @@ def parse_candump_bytes(buf: bytes, first_line: int = 1) -> ParsedChunk:
             detail = f"line {first_line + r}: {error}: {_snippet(raw)}"
             notices.append((r, SourceNotice(math.nan, "parse_error", detail)))
 
-    frame_lines = np.flatnonzero(have)
-    frames = out[have]
+    if have.all():
+        frame_lines, frames = np.arange(n, dtype=np.int64), out
+    else:
+        frame_lines, frames = np.flatnonzero(have), out[have]
     if extra:  # lines split by a stray CR: put their extra frames right after the first
         keys = np.concatenate((frame_lines * 4096, [r * 4096 + j for r, j, _ in extra]))
         frames = np.concatenate([frames, *(f for _, _, f in extra)])

@@ -112,6 +112,8 @@ class _GuardedBLFReader(BLFReader):
 
 
 _READERS = {".blf": _GuardedBLFReader}
+_READER_DEFAULTS: dict[str, dict[str, Any]] = {".asc": {"relative_timestamp": False}}
+"""ASC times are absolute (from the file's start date) like every other format's."""
 _TRUNCATION_ERRORS = (struct.error, EOFError, zlib.error, BLFParseError)
 """Reader failures that mean the file ends (or breaks) early rather than bad text."""
 
@@ -123,7 +125,7 @@ class CanLogReaderSource(FileSource):
         self.path = Path(path)
         self.description = f"{self.path.suffix.lstrip('.')} log {self.path}"
         self._size = _check_readable(self.path)
-        self._kwargs = reader_kwargs
+        self._kwargs = {**_READER_DEFAULTS.get(self.path.suffix.lower(), {}), **reader_kwargs}
         self._pos = 0
         self.frames = 0
         self._reader: can.io.generic.MessageReader | None = self._open()
@@ -176,12 +178,18 @@ class CanLogReaderSource(FileSource):
             reader.stop()
         self._pos = self._size
         self.frames += len(msgs)
-        if msgs:
-            yield SourceBatch(frames_from_messages(msgs))
+        notices = []
+        declared = getattr(reader, "file_size", 0)  # BLF headers record the final size
+        if isinstance(declared, int) and declared > self._size:
+            # python-can stops quietly at a cut BLF container; say so
+            detail = f"{self.path}: file is {self._size} bytes, its header says {declared}"
+            notices.append(SourceNotice(math.nan, "truncated", detail))
         elif not self.frames and self._size:
             # python-can's ASC reader skips every line it does not recognise
             detail = f"{self.path}: no CAN frames found (not a {self.path.suffix} log?)"
-            yield SourceBatch(notices=[SourceNotice(math.nan, "parse_error", detail)])
+            notices.append(SourceNotice(math.nan, "parse_error", detail))
+        if msgs or notices:
+            yield SourceBatch(frames_from_messages(msgs), [], notices)
 
     def close(self) -> None:
         if self._reader is not None:

@@ -76,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError("give a SCENARIO (a TOML file or a built-in name; --list shows them)")
     realtime = bool(args.interface or args.channel or args.pty)
     if args.out and realtime:
-        raise BenchError("--out writes a file as fast as possible; drop --interface/--channel/--pty")
+        raise BenchError(
+            "--out writes a file as fast as possible; drop --interface/--channel/--pty"
+        )
     if args.pty and (args.interface or args.channel):
         raise BenchError("choose one of --pty and --interface/--channel")
     if not (args.out or realtime or args.truth):

@@ -1,6 +1,14 @@
-"""The bench's own estimator (METHOD.md section 5) — minimal least-squares form.
+"""The bench's own estimator (METHOD.md section 5; design notes in docs/ESTIMATOR.md).
 
-Placeholder interface kept by the pipeline; the full estimator (a_ref, isolation) extends it.
+Per sample: exclude faulty channels (missing, status-flagged, stuck, singled out by the
+residual; exclusions held with hysteresis), solve the specific force (u, w) by least
+squares from the channels left, take the reference acceleration a_ref from SPEED_REF,
+and give the signed gradient 1000 * tan(atan2(u - a_ref, w)) = 1000 * (u - a_ref) / w.
+
+Its error from an error e in one channel grows like e/g, where the reference method's
+grows like sqrt(e/g) near level track, and it keeps the sign. Pure numpy, no I/O; the
+same stream gives bit-identical float64 output however it is cut into batches (each
+stage carries its state and uses element-wise or exact operations only).
 """
 
 from __future__ import annotations
@@ -9,6 +17,20 @@ import numpy as np
 
 from bench.config import Config
 from bench.events import EVENT_DTYPE
+from bench.fusion.isolation import ExclusionLatch, Reason, ResidualIsolator, StuckDetector
+from bench.fusion.least_squares import (
+    FULL,
+    geometry,
+    magnitude_gradient,
+    magnitude_gradient_one,
+    mask_code,
+    signed_gradient,
+    signed_gradient_one,
+    solve,
+    solve_one,
+)
+from bench.fusion.speed_ref import ReferenceAcceleration
+from protocol.layout import TICK_S
 
 ESTIMATE_DTYPE = np.dtype(
     [
@@ -23,15 +45,135 @@ ESTIMATE_DTYPE = np.dtype(
     ]
 )
 
+EXCLUDED_OF_MASK = (1, 2, 1, 3, 1, 2, 1, 0)
+"""Channel reported as excluded, by mask of channels used: the one left out of a pair,
+the lowest unused one when fewer than two remain, 0 with all three."""
+_EXCLUDED_OF_MASK = np.array(EXCLUDED_OF_MASK, dtype=np.uint8)
+SCALAR_MAX = 16
+"""Batches up to this many samples take the scalar path (live runs: the fixed cost of
+numpy calls would dominate); longer ones the vectorised path. Same results either way."""
+
+
+def _ticks(seconds: float) -> int:
+    return max(round(seconds / TICK_S), 1)
+
 
 class Estimator:
+    """Stateful; :meth:`push` every batch of samples in order (see bench.pipeline)."""
+
     def __init__(self, config: Config) -> None:
         self.config = config
+        s = config.estimator
+        self.g = config.g
+        self.geo = geometry(config.angles_rad)
+        self.a_ref = ReferenceAcceleration(s)
+        self.stuck = StuckDetector(_ticks(s.stuck_window_s))
+        window = max(round(s.residual_window_s * config.sample_rate_hz), 1)
+        self.isolator = ResidualIsolator(self.geo, config.g, s.residual_limit_mps2, window)
+        self.latch = ExclusionLatch(_ticks(s.recover_s))
 
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        out = np.zeros(len(samples), dtype=ESTIMATE_DTYPE)
-        for name in ("gradient_signed", "gradient_ls", "u", "w", "a_ref", "residual"):
-            out[name] = np.nan
-        return out, np.zeros(0, dtype=EVENT_DTYPE)
+        """Estimates for ``samples`` (SAMPLE_DTYPE, in order) and EXCLUDED/READMITTED events.
+
+        acc: (N, 3) calibrated m/s^2 of every channel; usable: (N, 3) present and status OK;
+        speeds: SPEED_REF records (SPEED_DTYPE) of this pipeline step, arrival order.
+        """
+        self.a_ref.buffer(speeds)
+        n = len(samples)
+        if n == 0:
+            return np.zeros(0, dtype=ESTIMATE_DTYPE), np.zeros(0, dtype=EVENT_DTYPE)
+        if n <= SCALAR_MAX:
+            return self._push_scalar(samples, acc, usable)
+        return self._push_vector(samples, acc, usable)
+
+    def _push_vector(
+        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        n = len(samples)
+        a_ref = self.a_ref.push(samples)
+        ticks = samples["ticks"]
+        present = samples["present"]
+        stuck = self.stuck.push(ticks, samples["code"], present)
+        healthy = usable & ~stuck
+        cand = healthy.all(axis=1)
+        residual, single = self.isolator.push(np.where(healthy, acc, 0.0), cand, a_ref)
+
+        reason = np.zeros((n, 3), dtype=np.int64)
+        hit = single >= 0
+        reason[np.flatnonzero(hit), single[hit]] = Reason.RESIDUAL
+        reason[stuck] = Reason.STUCK
+        reason[present & ~usable] = Reason.STATUS
+        latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
+
+        used = usable & ~latched
+        code = mask_code(used)
+        u, w = solve(np.where(used, acc, 0.0), code, self.geo)
+        out = np.zeros(n, dtype=ESTIMATE_DTYPE)
+        out["gradient_signed"] = signed_gradient(u, w, a_ref)
+        out["gradient_ls"] = magnitude_gradient(w, self.g)
+        out["u"] = u
+        out["w"] = w
+        out["a_ref"] = a_ref
+        out["residual"] = residual
+        out["degraded"] = code != FULL
+        out["excluded"] = _EXCLUDED_OF_MASK[code]
+        return out, events
+
+    def _push_scalar(
+        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Twin of :meth:`_push_vector`, one sample at a time in Python floats."""
+        rows = []
+        events: list[tuple] = []
+        ticks_l = samples["ticks"].tolist()
+        t_l = samples["t"].tolist()
+        seq_l = samples["seq"].tolist()
+        n_l = samples["n"].tolist()
+        code_l = samples["code"].tolist()
+        present_l = samples["present"].tolist()
+        acc_l = acc.tolist()
+        usable_l = usable.tolist()
+        geo, g = self.geo, self.g
+        for i in range(len(ticks_l)):
+            ticks, ok = ticks_l[i], usable_l[i]
+            a_ref = self.a_ref.step(ticks, t_l[i], seq_l[i])
+            stuck = self.stuck.step(ticks, code_l[i], present_l[i])
+            healthy = [ok[k] and not stuck[k] for k in range(3)]
+            cand = healthy[0] and healthy[1] and healthy[2]
+            a = acc_l[i]
+            a_h = (
+                a[0] if healthy[0] else 0.0,
+                a[1] if healthy[1] else 0.0,
+                a[2] if healthy[2] else 0.0,
+            )
+            residual, single = self.isolator.step(a_h, cand, a_ref)
+            reason = [0, 0, 0]
+            if single >= 0:
+                reason[single] = Reason.RESIDUAL
+            for k in range(3):
+                if stuck[k]:
+                    reason[k] = Reason.STUCK
+                if present_l[i][k] and not ok[k]:
+                    reason[k] = Reason.STATUS
+            latched, ev = self.latch.step(ticks, t_l[i], n_l[i], reason)
+            events += ev
+            used = [ok[k] and not latched[k] for k in range(3)]
+            code = used[0] + 2 * used[1] + 4 * used[2]
+            a_u = (a[0] if used[0] else 0.0, a[1] if used[1] else 0.0, a[2] if used[2] else 0.0)
+            u, w = solve_one(a_u, code, geo)
+            rows.append(
+                (
+                    signed_gradient_one(u, w, a_ref),
+                    magnitude_gradient_one(w, g),
+                    u,
+                    w,
+                    a_ref,
+                    residual,
+                    code != FULL,
+                    EXCLUDED_OF_MASK[code],
+                )
+            )
+        out = np.array(rows, dtype=ESTIMATE_DTYPE)
+        return out, np.array(events, dtype=EVENT_DTYPE)

@@ -538,4 +538,3 @@ def state_name(state: int) -> str:
 
 def outcome_name(value: int) -> str:
     return Outcome(value).name if value in Outcome._value2member_map_ else str(value)
-

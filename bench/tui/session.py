@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bench.config import Config
 from bench.live import HISTORY, LiveRunner, Snapshot
-from bench.liveopts import LiveSetup
+from bench.liveopts import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
 from bench.pipeline import StepOutput
 from bench.sinks import Sink
 from bench.tui.replay_source import ReplaySource, ReplayTap
@@ -55,19 +56,19 @@ class Recorder:
         return Path(s.path) if s is not None else None
 
     def start(self) -> Path:
-        """Open a new MCAP file and record into it (BenchError if it cannot be created)."""
+        """Open a new MCAP file and record into it (BenchError if it cannot be created).
+
+        Opened under the lock (a few ms of the processing thread, which the runner's queue
+        absorbs) so that a shutdown racing with it cannot leave an unclosed file."""
         if self._open_sink is None:
             raise RuntimeError("this session cannot record")
-        sink = self._open_sink()
         with self._lock:
-            if self._closed or self._sink is not None:
-                old, self._sink = sink, self._sink
-                with contextlib.suppress(Exception):
-                    old.close()
-                return Path(self._sink.path) if self._sink else Path(sink.path)
-            self._sink = sink
-        self.files.append(Path(sink.path))
-        return Path(sink.path)
+            if self._closed:
+                raise RuntimeError("the run has stopped")
+            if self._sink is None:
+                self._sink = self._open_sink()
+                self.files.append(Path(self._sink.path))
+            return Path(self._sink.path)
 
     def detach(self) -> Any:
         """Stop recording; returns the sink, which the caller closes (off the UI thread)."""
@@ -81,14 +82,14 @@ class Recorder:
             return
         sink.close()
         with contextlib.suppress(Exception):
-            self.last_status = dict(sink.status())
+            self.last_status = sink_status(sink)
 
     def status(self) -> dict[str, Any] | None:
         s = self._sink
         if s is None:
             return None
         try:
-            return dict(s.status())
+            return sink_status(s)
         except Exception as exc:  # the UI must survive a sink that cannot report
             return {"path": str(getattr(s, "path", "?")), "error": repr(exc)}
 
@@ -108,6 +109,23 @@ class Recorder:
             sink, self._sink = self._sink, None
             self._closed = True
         self.finish(sink)
+
+
+def sink_status(sink: Any) -> dict[str, Any]:
+    """A recording's figures: its ``status()`` dict, else its McapSink counters."""
+    fn = getattr(sink, "status", None)
+    if callable(fn):
+        return dict(fn())
+    out: dict[str, Any] = {"path": str(getattr(sink, "path", "?"))}
+    for key, attr in (
+        ("frames", "frames_logged"),
+        ("bytes", "bytes_written"),
+        ("dropped", "dropped"),
+        ("error", "error"),
+    ):
+        if hasattr(sink, attr):
+            out[key] = getattr(sink, attr)
+    return out
 
 
 @dataclass
@@ -211,3 +229,55 @@ def wait_until(pred: Callable[[], bool], timeout: float, interval: float = 0.02)
             return True
         time.sleep(interval)
     return pred()
+
+
+# -- building sessions (for the commands) --------------------------------------------------
+def live_session(
+    setup: LiveSetup,
+    config: Config,
+    first_sink: Any = None,
+    log_dir: Path = DEFAULT_LOG_DIR,
+    *,
+    record: bool = True,
+) -> Session:
+    """A session on a live source; ``r`` opens new files in ``log_dir``."""
+
+    def open_sink() -> Any:
+        return start_recording(default_log_path(setup.slug, log_dir), setup, config)
+
+    return Session.create(
+        setup,
+        lambda sinks: LiveRunner(setup.source, config, sinks, description=setup.description),
+        open_sink if record else None,
+        first_sink,
+    )
+
+
+def replay_setup(
+    path: str | Path, config: Config, *, speed: float | None = 1.0, paused: bool = False
+) -> LiveSetup:
+    """A LiveSetup whose source plays the log ``path`` (see :class:`ReplaySource`)."""
+    from devices.files import open_log
+
+    p = Path(path)
+    source = ReplaySource(
+        open_log(p),
+        speed=speed,
+        paused=paused,
+        step_s=1.0 / config.sample_rate_hz,
+        description=f"replay {p.name}",
+    )
+    return LiveSetup(source, f"replay {p.name}", f"replay-{p.stem}"[:40])
+
+
+def run_tui(session: Session, **app_kwargs: Any) -> int:
+    """Start the session, run the App in this terminal, and always stop the session."""
+    from bench.tui.app import BenchApp
+
+    app = BenchApp(session, **app_kwargs)
+    session.start()
+    try:
+        code = app.run()
+    finally:
+        session.stop()
+    return int(code or 0) if not (session.runner and session.runner.error) else 1

@@ -108,7 +108,9 @@ def apply_value_fault(
     return np.flatnonzero(hit)
 
 
-def apply_stuck(codes: np.ndarray, status: np.ndarray, fault: Fault, t_us: np.ndarray) -> np.ndarray:
+def apply_stuck(
+    codes: np.ndarray, status: np.ndarray, fault: Fault, t_us: np.ndarray
+) -> np.ndarray:
     """Freeze code and status of the target channels (3, n) in place; returns the samples hit.
 
     The ADC register stops updating: it repeats the last value before the window (the first

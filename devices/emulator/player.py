@@ -150,9 +150,12 @@ class PtyPlayer(_PacedPlayer):
     the board never waits for a listener.
     """
 
-    def __init__(self, stream: UartStream, t0: float, *, speed: float = 1.0) -> None:
+    def __init__(
+        self, stream: UartStream, t0: float, *, speed: float = 1.0, linger_s: float = 1.0
+    ) -> None:
         super().__init__(stream.packet_t - t0, speed, name="virtual-board-pty")
         self.stream = stream
+        self.linger_s = linger_s
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self.master, False)
@@ -178,9 +181,7 @@ class PtyPlayer(_PacedPlayer):
             except BlockingIOError:
                 _, writable, _ = select.select([], [self.master], [], 0.2)
                 if not writable:  # nobody is reading: drop the stale bytes, keep going
-                    pending = struct.unpack(
-                        "i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
-                    )[0]
+                    pending = self._pending()
                     termios.tcflush(self._slave, termios.TCIFLUSH)
                     self.bytes_discarded += pending
             except OSError as exc:
@@ -189,12 +190,28 @@ class PtyPlayer(_PacedPlayer):
                 return
         self.packets_written += j - i
 
+    def _pending(self) -> int:
+        """Bytes written but not yet read by whoever has the slave open."""
+        raw = fcntl.ioctl(self._slave, termios.FIONREAD, b"\0\0\0\0")
+        return int(struct.unpack("i", raw)[0])
+
     def _close(self) -> None:
-        if not self._closed:
-            self._closed = True
-            for fd in (self.master, self._slave):
-                with contextlib.suppress(OSError):
-                    os.close(fd)
+        if self._closed:
+            return
+        # Closing the master hangs the line up and loses what the reader has not taken
+        # yet, so give it a moment (linger_s) to read the tail of the stream.
+        deadline = time.monotonic() + self.linger_s
+        drained = 0
+        while not self._halt.is_set() and time.monotonic() < deadline and drained < 2:
+            time.sleep(0.02)
+            try:
+                drained = drained + 1 if self._pending() == 0 else 0
+            except OSError:
+                break
+        self._closed = True
+        for fd in (self.master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
 
 def _open_virtual(channel: str) -> object:
@@ -257,17 +274,19 @@ def write_output(sim: Simulation, path: str | Path) -> str:
             )
         if suffix == ".mcap":
             try:
-                from bench.mcaplog.writer import write_emulation  # type: ignore[import-not-found]
+                from bench.mcaplog.writer import write_emulation
             except ImportError:
                 raise BenchError(
                     "mcap output needs bench.mcaplog.writer.write_emulation, which is not "
-                    "installed yet; write .log or .bin instead"
+                    "installed; write .log or .bin instead"
                 ) from None
-            write_emulation(p, sim)
-            return f"wrote {len(sim.frames)} frames to {p}"
+            counts = write_emulation(p, sim, sim.scenario.path or None)
+            return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {p}"
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
-    raise BenchError(f"{p}: unknown output type {suffix or '(none)'!r} (expected .log, .bin or .mcap)")
+    raise BenchError(
+        f"{p}: unknown output type {suffix or '(none)'!r} (expected .log, .bin or .mcap)"
+    )
 
 
 def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:

@@ -150,7 +150,8 @@ class Scenario:
     board: BoardModel = field(default_factory=BoardModel)
     odometer: OdometerModel = field(default_factory=OdometerModel)
     faults: tuple[Fault, ...] = ()
-    source: str = "<defaults>"
+    source: str = "<defaults>"  # file name for messages
+    path: str = ""  # the file it was loaded from ("" when parsed from text)
 
     @property
     def n_samples(self) -> int:
@@ -533,7 +534,7 @@ def load_scenario(path: str | Path) -> Scenario:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read scenario: {exc.strerror or exc}") from None
-    return parse_scenario(text, p.name)
+    return replace(parse_scenario(text, p.name), path=str(p))
 
 
 def calibration_toml(sc: Scenario) -> str:
@@ -553,4 +554,3 @@ def calibration_toml(sc: Scenario) -> str:
         lines += ["[[channels]]", f"angle_deg = {c.angle_deg!r}", ""]
     lines += ["[fusion]", f"g = {sc.g!r}", ""]
     return "\n".join(lines)
-

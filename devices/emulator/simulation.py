@@ -70,7 +70,12 @@ class FaultEffect:
     def describe(self) -> str:
         parts = []
         if len(self.frames):
-            verb = {"duplicate": "added", "reorder": "moved", "noise": "broke", "truncation": "broke"}
+            verb = {
+                "duplicate": "added",
+                "reorder": "moved",
+                "noise": "broke",
+                "truncation": "broke",
+            }
             unit = "packets" if self.fault.target == "uart" else "frames"
             parts.append(f"{verb.get(self.fault.kind, 'changed')} {len(self.frames)} {unit}")
         if len(self.removed_uids):
@@ -126,6 +131,10 @@ class Simulation:
         return self.nominal.seq[self.frame_uid]
 
     @property
+    def base_id(self) -> int:
+        return self.scenario.base_id
+
+    @property
     def t0(self) -> float:
         """Time of the run's start on the frames' time base (scenario start_time_s)."""
         return fx.to_us(self.scenario.start_time_s) / 1e6
@@ -163,6 +172,12 @@ class Simulation:
         lines += [f"  fault {e.describe()}" for e in self.effects]
         if self._uart is not None:
             lines += [f"  fault {e.describe()}" for e in self._uart.effects]
+        else:
+            lines += [
+                f"  fault {f.label}: UART only (the UART stream was not generated)"
+                for f in sc.faults
+                if f.target == "uart"
+            ]
         return "\n".join(lines)
 
 
@@ -241,7 +256,9 @@ def simulate(sc: Scenario) -> Simulation:
         if f.kind == "duplicate":
             rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
             cand = _targeted(nominal, f, uids) & (tag == 0)
-            order, is_copy = fx.duplicate_rows(len(uids), fx.pick(cand, f.params["probability"], rng))
+            order, is_copy = fx.duplicate_rows(
+                len(uids), fx.pick(cand, f.params["probability"], rng)
+            )
             uids, tag = uids[order], np.where(is_copy, f.index, tag[order])
     send_us = fx.serialise(nominal.queue_us[uids], sc.board.frame_gap_us)
     on_uart = (tag == 0) & (nominal.kind[uids] != FrameKind.SPEED)
@@ -283,19 +300,27 @@ def simulate(sc: Scenario) -> Simulation:
             mask = _sample_mask(nominal, f, hit[f.index], n)
             eff = FaultEffect(f, _final(mask, uids), samples=hit[f.index])
         elif f.kind == "dropout":
-            eff = FaultEffect(f, removed_uids=removed[f.index], samples=_adc_samples(nominal, removed[f.index]))
+            eff = FaultEffect(
+                f, removed_uids=removed[f.index], samples=_adc_samples(nominal, removed[f.index])
+            )
         elif f.kind == "crc":
             mask = np.zeros(n_nom, dtype=bool)
             mask[crc_uids[f.index]] = True
-            eff = FaultEffect(f, _final(mask, uids), samples=_adc_samples(nominal, crc_uids[f.index]))
+            eff = FaultEffect(
+                f, _final(mask, uids), samples=_adc_samples(nominal, crc_uids[f.index])
+            )
         elif f.kind == "counter_jump":
             mask = _targeted(nominal, f)
-            eff = FaultEffect(f, _final(mask, uids), samples=_adc_samples(nominal, np.flatnonzero(mask)))
+            eff = FaultEffect(
+                f, _final(mask, uids), samples=_adc_samples(nominal, np.flatnonzero(mask))
+            )
         elif f.kind == "duplicate":
             rows = np.flatnonzero(tag == f.index)
             eff = FaultEffect(f, rows, samples=_adc_samples(nominal, uids[rows]))
         elif f.kind == "loss":
-            eff = FaultEffect(f, removed_uids=lost[f.index], samples=_adc_samples(nominal, lost[f.index]))
+            eff = FaultEffect(
+                f, removed_uids=lost[f.index], samples=_adc_samples(nominal, lost[f.index])
+            )
         else:  # reorder
             rows = np.sort(pos_of_rid[moved[f.index]])
             eff = FaultEffect(f, rows, samples=_adc_samples(nominal, uids[rows]))
@@ -363,7 +388,9 @@ def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSe
     v = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, when / 1e6 - od.lag_s)
     speed = v.speed_mps
     if od.noise_mps:
-        speed = speed + od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
+        speed = speed + od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(
+            len(m)
+        )
     mm = np.clip(np.rint(speed * 1000.0), -(2**31), 2**31 - 1).astype(np.int64)
     ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
     counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)

@@ -14,6 +14,7 @@ in, no I/O. Conventions:
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -37,7 +38,7 @@ def gradient_profile(
         return np.zeros_like(x)
     out = np.full_like(x, track[0].gradient_permil)
     boundary = 0.0
-    for prev, seg in zip(track, track[1:], strict=False):
+    for prev, seg in itertools.pairwise(track):
         boundary += prev.length_m
         step = seg.gradient_permil - prev.gradient_permil
         if step == 0.0:
@@ -58,9 +59,7 @@ class Motion:
     position_m: np.ndarray
 
 
-def train_motion(
-    phases: tuple[TrainPhase, ...], v0: float, x0: float, t: np.ndarray
-) -> Motion:
+def train_motion(phases: tuple[TrainPhase, ...], v0: float, x0: float, t: np.ndarray) -> Motion:
     """Acceleration, speed and position at times t (s), exact piecewise-quadratic kinematics.
 
     Each phase accelerates at a constant rate for its duration; the speed is held after the

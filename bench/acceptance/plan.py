@@ -1,0 +1,449 @@
+"""Acceptance plans (TOML): load, resolve and validate strictly.
+
+A plan is a scenario for the virtual board (embedded as a ``[scenario]`` table in the
+emulator's own format, or ``scenario = "name-or-path"``), operator steps for a real board
+(``[[steps]]``), an optional calibration overlay (``[config]``) and the checks with their
+limits (``[[checks]]``). Every mistake is one ConfigError line naming the file and key,
+because a typo in a limit that were silently ignored would pass a device unseen.
+The format is documented in docs/ACCEPTANCE.md.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.acceptance.checks import KINDS, CheckSpec, Param
+from bench.config import Config, config_from_dict
+from bench.errors import ConfigError
+
+PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
+"""The plan library shipped with the bench (``bench/plans/*.toml``)."""
+
+EXPECTS = ("pass", "fail")
+CHECK_EXPECTS = ("pass", "warn", "fail", "skip")
+LINKS = ("can", "uart")
+_TOP = ("plan", "scenario", "config", "steps", "checks")
+_PLAN_KEYS = ("name", "title", "expect", "link", "duration_s")
+_STEP_KEYS = ("prompt", "gradient_permil", "settle_s", "measure_s", "at_s")
+_CHECK_COMMON = ("name", "kind", "from_s", "to_s", "expect")
+
+
+@dataclass(frozen=True, slots=True)
+class Step:
+    """An operator step: set something up, confirm, let it settle, measure."""
+
+    index: int  # 1-based
+    prompt: str
+    gradient_permil: float  # what the bench should then read
+    settle_s: float = 2.0
+    measure_s: float = 5.0
+    at_s: float | None = None  # not before this run time (a motorised table's programme)
+
+
+@dataclass(frozen=True)
+class Plan:
+    name: str
+    title: str
+    expect: str  # the verdict this plan is meant to give against a healthy bench
+    path: Path | None
+    text: str  # the plan file as written, for the record
+    checks: tuple[CheckSpec, ...]
+    steps: tuple[Step, ...] = ()
+    scenario: Any = None  # devices.emulator.Scenario, or None for a board-only plan
+    scenario_data: dict[str, Any] | None = None  # the scenario as parsed TOML
+    scenario_ref: str | None = None  # the referenced scenario file, if not embedded
+    config_overlay: dict[str, Any] = field(default_factory=dict)
+    link: str = "can"
+    duration_s: float | None = None
+
+    @property
+    def emulated(self) -> bool:
+        return self.scenario is not None
+
+    def config(self) -> Config:
+        """The calibration for an emulated run: the virtual board as built (true angles,
+        sample rate, base id), with the plan's [config] overlay on top."""
+        return build_config(self.scenario, self.config_overlay, self.name)
+
+    def scenario_toml(self) -> str:
+        """The scenario as a TOML file the emulator reads back to the same Scenario."""
+        return dump_toml(self.scenario_data or {})
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _tname(v: Any) -> str:
+    return {
+        bool: "boolean",
+        int: "integer",
+        float: "number",
+        str: "string",
+        list: "array",
+        dict: "table",
+    }.get(type(v), type(v).__name__)
+
+
+class _Where:
+    """Error messages that name the file and the key."""
+
+    def __init__(self, file: str) -> None:
+        self.file = file
+
+    def error(self, where: str, msg: str) -> ConfigError:
+        return ConfigError(f"{self.file}: {where}: {msg}")
+
+    def table(self, where: str, value: Any, allowed: tuple[str, ...]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.error(where, f"expected a table, got {_tname(value)}")
+        for key in value:
+            if key not in allowed:
+                raise self.error(
+                    f"{where}.{key}" if where else key,
+                    f"unknown key (expected one of: {', '.join(sorted(allowed))})",
+                )
+        return value
+
+    def number(
+        self,
+        where: str,
+        v: Any,
+        lo: float | None = None,
+        hi: float | None = None,
+        *,
+        lo_open: bool = False,
+    ) -> float:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise self.error(where, f"expected a number, got {_tname(v)} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise self.error(where, f"must be finite, got {v!r}")
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            raise self.error(where, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
+        if hi is not None and v > hi:
+            raise self.error(where, f"must be <= {hi:g}, got {v!r}")
+        return v
+
+    def integer(self, where: str, v: Any, lo: float | None = None, hi: float | None = None) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(where, f"expected an integer, got {_tname(v)} {v!r}")
+        if lo is not None and v < lo:
+            raise self.error(where, f"must be >= {lo:g}, got {v!r}")
+        if hi is not None and v > hi:
+            raise self.error(where, f"must be <= {hi:g}, got {v!r}")
+        return v
+
+    def text(self, where: str, v: Any) -> str:
+        if not isinstance(v, str):
+            raise self.error(where, f"expected a string, got {_tname(v)} {v!r}")
+        return v
+
+    def choice(self, where: str, v: Any, choices: tuple[Any, ...]) -> Any:
+        if isinstance(v, bool) or v not in choices:
+            shown = ", ".join(repr(c) for c in choices)
+            raise self.error(where, f"{v!r} is not one of {shown}")
+        return v
+
+
+def _param(w: _Where, where: str, p: Param, v: Any) -> Any:
+    if p.type == "number":
+        return w.number(where, v, p.lo, p.hi)
+    if p.type == "integer":
+        return w.integer(where, v, p.lo, p.hi)
+    if p.type == "bool":
+        if not isinstance(v, bool):
+            raise w.error(where, f"expected true or false, got {_tname(v)} {v!r}")
+        return v
+    if p.type == "choice":
+        return w.choice(where, v, p.choices)
+    if p.type == "events":
+        items = [v] if isinstance(v, str) else v
+        if not isinstance(items, list) or not items:
+            raise w.error(where, f"expected a non-empty array of event names, got {v!r}")
+        for item in items:
+            if not isinstance(item, str) or item.upper() not in p.choices:
+                raise w.error(
+                    where, f"unknown event {item!r} (expected names from {', '.join(p.choices)})"
+                )
+        return tuple(dict.fromkeys(i.upper() for i in items))
+    return w.text(where, v)  # pragma: no cover - every Param type is handled above
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _steps(w: _Where, items: Any) -> tuple[Step, ...]:
+    if not isinstance(items, list):
+        raise w.error("steps", f"expected an array of tables ([[steps]]), got {_tname(items)}")
+    out = []
+    for i, item in enumerate(items, 1):
+        where = f"steps[{i}]"
+        t = w.table(where, item, _STEP_KEYS)
+        for key in ("prompt", "gradient_permil"):
+            if key not in t:
+                raise w.error(f"{where}.{key}", "missing (every step needs it)")
+        at = t.get("at_s")
+        out.append(
+            Step(
+                index=i,
+                prompt=w.text(f"{where}.prompt", t["prompt"]),
+                gradient_permil=w.number(
+                    f"{where}.gradient_permil", t["gradient_permil"], -500, 500
+                ),
+                settle_s=w.number(f"{where}.settle_s", t.get("settle_s", 2.0), 0.0, 3600.0),
+                measure_s=w.number(
+                    f"{where}.measure_s", t.get("measure_s", 5.0), 0.0, 3600.0, lo_open=True
+                ),
+                at_s=None if at is None else w.number(f"{where}.at_s", at, 0.0),
+            )
+        )
+    return tuple(out)
+
+
+def _checks(w: _Where, items: Any) -> tuple[CheckSpec, ...]:
+    if not isinstance(items, list) or not items:
+        raise w.error("checks", "a plan needs at least one [[checks]] table")
+    out = []
+    names: dict[str, int] = {}
+    for i, item in enumerate(items, 1):
+        where = f"checks[{i}]"
+        if not isinstance(item, dict):
+            raise w.error(where, f"expected a table, got {_tname(item)}")
+        if "kind" not in item:
+            raise w.error(f"{where}.kind", f"missing (one of {', '.join(KINDS)})")
+        kind = item["kind"]
+        if not isinstance(kind, str) or kind not in KINDS:
+            raise w.error(
+                f"{where}.kind", f"unknown check kind {kind!r} (expected one of {', '.join(KINDS)})"
+            )
+        spec = KINDS[kind]
+        t = w.table(where, item, (*_CHECK_COMMON, *spec.params))
+        params: dict[str, Any] = {}
+        for key, p in spec.params.items():
+            if key in t:
+                params[key] = _param(w, f"{where}.{key}", p, t[key])
+            elif p.required:
+                raise w.error(f"{where}.{key}", f"missing (a {kind} check needs it)")
+        lim = spec.limit
+        if lim.warn_key and lim.warn_key in params:
+            warn, limit = params[lim.warn_key], params[lim.key]
+            if (warn > limit) if lim.upper else (warn < limit):
+                rel = "<=" if lim.upper else ">="
+                raise w.error(
+                    f"{where}.{lim.warn_key}",
+                    f"the warning limit must be {rel} {lim.key} ({limit!r}), got {warn!r}",
+                )
+        name = w.text(f"{where}.name", t.get("name", f"{kind} #{i}")).strip()
+        if not name:
+            raise w.error(f"{where}.name", "must not be empty")
+        if name in names:
+            raise w.error(f"{where}.name", f"{name!r} is already the name of checks[{names[name]}]")
+        names[name] = i
+        from_s = t.get("from_s")
+        to_s = t.get("to_s")
+        from_s = None if from_s is None else w.number(f"{where}.from_s", from_s, 0.0)
+        to_s = None if to_s is None else w.number(f"{where}.to_s", to_s, 0.0, lo_open=True)
+        if from_s is not None and to_s is not None and to_s <= from_s:
+            raise w.error(f"{where}.to_s", f"must be > from_s ({from_s:g}), got {to_s!r}")
+        expect = t.get("expect")
+        if expect is not None:
+            expect = w.choice(f"{where}.expect", expect, CHECK_EXPECTS)
+        out.append(CheckSpec(i, name, kind, params, from_s, to_s, expect))
+    return tuple(out)
+
+
+def _cross_checks(w: _Where, plan: Plan) -> None:
+    """What only the whole plan can tell: a check that needs truth, steps or a fault."""
+    sc = plan.scenario
+    for c in plan.checks:
+        where = f"checks[{c.index}]"
+        kind = KINDS[c.kind]
+        if kind.needs_truth and sc is None:
+            raise w.error(
+                f"{where}.kind", f"a {c.kind} check needs emulator truth: the plan has no scenario"
+            )
+        if kind.needs_steps and not plan.steps:
+            raise w.error(f"{where}.kind", f"a {c.kind} check needs [[steps]]: the plan has none")
+        if sc is not None and c.from_s is not None and c.from_s >= sc.duration_s:
+            raise w.error(
+                f"{where}.from_s", f"must be < the scenario's duration_s ({sc.duration_s:g})"
+            )
+        if (
+            c.kind == "step_gradient"
+            and c.get("step") is not None
+            and c.get("step") > len(plan.steps)
+        ):
+            raise w.error(f"{where}.step", f"the plan has {len(plan.steps)} steps")
+        if c.kind == "fault_detected":
+            _check_fault_target(w, where, c, sc)
+
+
+def _check_fault_target(w: _Where, where: str, c: CheckSpec, sc: Any) -> None:
+    from devices.emulator.faults import target_channels
+
+    index, channel = c.get("fault"), c.get("channel")
+    faults = list(sc.faults)
+    if index is not None:
+        if index > len(faults):
+            raise w.error(f"{where}.fault", f"the scenario has {len(faults)} [[faults]]")
+        faults = [faults[index - 1]]
+    chans = [set(target_channels(f)) for f in faults]
+    if channel is not None and not any(channel in s for s in chans):
+        raise w.error(f"{where}.channel", f"no scenario fault targets channel {channel}")
+    if not any(chans):
+        raise w.error(f"{where}.kind", "no scenario fault targets an ADC channel to detect")
+
+
+def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
+    """Scenario calibration (or nominal) with the plan's [config] tables merged on top."""
+    import tomllib as _toml
+
+    base: dict[str, Any] = {}
+    if scenario is not None:
+        from devices.emulator import calibration_toml
+
+        base = _toml.loads(calibration_toml(scenario))
+    merged = dict(base)
+    for key, value in overlay.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = {**merged[key], **value}
+        else:
+            merged[key] = value
+    return config_from_dict(merged, source=f"{source}: config")
+
+
+def _scenario(w: _Where, value: Any, plan_dir: Path | None) -> tuple[Any, dict | None, str | None]:
+    from devices.emulator import load_scenario, scenario_from_dict
+    from devices.emulator.scenario import resolve_scenario_path
+
+    if isinstance(value, dict):
+        return scenario_from_dict(value, source=f"{w.file}: scenario"), value, None
+    if isinstance(value, str):
+        p = Path(value)
+        if plan_dir is not None and not p.is_absolute() and (plan_dir / p).exists():
+            p = plan_dir / p
+        try:
+            path = resolve_scenario_path(p)
+        except ConfigError as exc:
+            raise w.error("scenario", str(exc)) from None
+        sc = load_scenario(path)
+        return sc, tomllib.loads(path.read_text(encoding="utf-8")), str(path)
+    raise w.error("scenario", f"expected a [scenario] table or a file name, got {_tname(value)}")
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Plan:
+    """Validate plan TOML text into a Plan; ConfigError naming ``file`` and the key."""
+    w = _Where(file)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{file}: not valid TOML: {exc}") from None
+    w.table("", data, _TOP)
+    if "plan" not in data:
+        raise w.error("plan", 'missing [plan] table (it states at least expect = "pass"|"fail")')
+    head = w.table("plan", data["plan"], _PLAN_KEYS)
+    if "expect" not in head:
+        raise w.error("plan.expect", 'missing ("pass" or "fail": the verdict this plan is for)')
+    default_name = path.stem if path is not None else "plan"
+    dur = head.get("duration_s")
+    scenario, sc_data, sc_ref = (None, None, None)
+    if "scenario" in data:
+        scenario, sc_data, sc_ref = _scenario(w, data["scenario"], path.parent if path else None)
+    overlay = w.table(
+        "config", data.get("config", {}), ("board", "channels", "fusion", "estimator")
+    )
+    plan = Plan(
+        name=w.text("plan.name", head.get("name", default_name)),
+        title=w.text("plan.title", head.get("title", "")),
+        expect=w.choice("plan.expect", head["expect"], EXPECTS),
+        path=path,
+        text=text,
+        checks=_checks(w, data.get("checks")),
+        steps=_steps(w, data.get("steps", [])),
+        scenario=scenario,
+        scenario_data=sc_data,
+        scenario_ref=sc_ref,
+        config_overlay=overlay,
+        link=w.choice("plan.link", head.get("link", "can"), LINKS),
+        duration_s=None if dur is None else w.number("plan.duration_s", dur, 0.0, lo_open=True),
+    )
+    if scenario is None and not plan.steps and plan.duration_s is None:
+        raise w.error(
+            "plan", "needs a [scenario], [[steps]] or plan.duration_s to know what to run"
+        )
+    if overlay or scenario is not None:
+        plan.config()  # validate the overlay now, naming its key
+    _cross_checks(w, plan)
+    return plan
+
+
+def resolve_plan_path(name: str | Path) -> Path:
+    """A path as given if it exists, else a shipped plan by name (``level`` -> level.toml)."""
+    p = Path(name)
+    if p.exists():
+        return p
+    builtin = PLAN_DIR / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
+    if p.parent == Path(".") and builtin.exists():
+        return builtin
+    raise ConfigError(f"{p}: no such plan file (bench accept --list shows the shipped plans)")
+
+
+def load_plan(name: str | Path) -> Plan:
+    """Read and validate a plan file (or a shipped plan by name)."""
+    p = resolve_plan_path(name)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read plan: {exc.strerror or exc}") from None
+    return parse_plan(text, p.name, p)
+
+
+def shipped_plans() -> list[Path]:
+    return sorted(PLAN_DIR.glob("*.toml"))
+
+
+# --------------------------------------------------------------------------- TOML out
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        import json
+
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"cannot write {type(v).__name__} as TOML")
+
+
+def _key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else _toml_value(k)
+
+
+def dump_toml(data: dict[str, Any], prefix: str = "") -> str:
+    """Parsed TOML back to text (tables and arrays of tables kept as such); enough for
+    writing a plan's embedded scenario as the scenario file the emulator reads."""
+    lines: list[str] = []
+    nested: list[str] = []
+    for k, v in data.items():
+        full = f"{prefix}.{_key(k)}" if prefix else _key(k)
+        if isinstance(v, dict):
+            nested.append(f"[{full}]\n" + dump_toml(v, full))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            nested += [f"[[{full}]]\n" + dump_toml(x, full) for x in v]
+        else:
+            lines.append(f"{_key(k)} = {_toml_value(v)}")
+    body = "\n".join(lines) + ("\n" if lines else "")
+    return body + "".join(("\n" if i or lines else "") + n for i, n in enumerate(nested))

@@ -1,0 +1,701 @@
+"""Acceptance runs: get the run's samples, measure every check, write the record.
+
+Three ways to run a plan, one measuring path:
+
+* emulated (default for a plan with a scenario): simulate the scenario, push its frames
+  through the same Pipeline a live run uses as fast as possible (bench.replay.run_steps),
+  with the MCAP sink writing DIR/run.mcap. Deterministic; no wall clock involved.
+* realtime (``--realtime``): the same scenario played by the in-process virtual board on
+  python-can's virtual bus, received by LiveRunner -- the live path end to end.
+* live (source options): a real board (or ``--emulate SCENARIO``) through open_live and
+  LiveRunner, with operator steps answered at the console, by ``--yes`` or a steps file.
+
+Everything that can go wrong once the run has started becomes verdict "error" with the
+reason in the record, so an unattended run always leaves junit.xml and record.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import sys
+import threading
+import time
+import tomllib
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench import __version__
+from bench.acceptance.checks import (
+    EXIT_CODES,
+    FaultInfo,
+    Measurement,
+    RunData,
+    StepWindow,
+    not_measured,
+    overall,
+    run_check,
+)
+from bench.acceptance.plan import Plan, Step
+from bench.config import Config, load_config
+from bench.errors import BenchError, ConfigError
+from bench.events import EVENT_DTYPE, concat_events
+from bench.pipeline import Pipeline, StepOutput
+from bench.replay import run_steps
+from bench.results import RESULT_DTYPE
+from devices.base import SourceBatch
+
+SILENCE_S = 10.0
+"""A live run with no new sample for this long (wall clock) has lost its board: error."""
+DRAIN_S = 0.3
+"""After the virtual board's last frame: time for it to cross the virtual bus."""
+BATCH_FRAMES = 65536
+
+
+# --------------------------------------------------------------------------- answers
+
+
+@dataclass(frozen=True, slots=True)
+class Answer:
+    """An operator's answer to a step: go on, skip it, or abort the run."""
+
+    answer: str = "ok"  # ok | skip | abort
+    reference_permil: float | None = None  # the reference inclinometer's reading
+    note: str = ""
+
+
+def parse_answer(text: str) -> Answer:
+    """Console input: Enter = ok, a number = ok with that reference reading, s = skip,
+    q = abort, anything else = ok with a note."""
+    s = text.strip()
+    if not s:
+        return Answer()
+    low = s.lower()
+    if low in ("s", "skip"):
+        return Answer("skip")
+    if low in ("q", "quit", "abort"):
+        return Answer("abort")
+    with contextlib.suppress(ValueError):
+        v = float(s)
+        if math.isfinite(v):
+            return Answer(reference_permil=v)
+    return Answer(note=s)
+
+
+def load_answers(path: str | Path) -> list[Answer]:
+    """A steps file: ``[[answers]]`` in step order with ``answer`` ("ok" | "skip" |
+    "abort"), optional ``reference_permil`` and ``note``. ConfigError naming the key."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read steps file: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    for key in data:
+        if key != "answers":
+            raise ConfigError(f"{p.name}: {key}: unknown key (expected: answers)")
+    items = data.get("answers", [])
+    if not isinstance(items, list):
+        raise ConfigError(f"{p.name}: answers: expected an array of tables ([[answers]])")
+    out = []
+    for i, item in enumerate(items, 1):
+        where = f"{p.name}: answers[{i}]"
+        if not isinstance(item, dict):
+            raise ConfigError(f"{where}: expected a table")
+        for key in item:
+            if key not in ("answer", "reference_permil", "note"):
+                raise ConfigError(
+                    f"{where}.{key}: unknown key (expected one of: answer, note, reference_permil)"
+                )
+        ans = item.get("answer", "ok")
+        if ans not in ("ok", "skip", "abort"):
+            raise ConfigError(f"{where}.answer: {ans!r} is not one of 'ok', 'skip', 'abort'")
+        ref = item.get("reference_permil")
+        if ref is not None and (
+            isinstance(ref, bool) or not isinstance(ref, int | float) or not math.isfinite(ref)
+        ):
+            raise ConfigError(f"{where}.reference_permil: expected a number, got {ref!r}")
+        note = item.get("note", "")
+        if not isinstance(note, str):
+            raise ConfigError(f"{where}.note: expected a string, got {note!r}")
+        out.append(Answer(ans, None if ref is None else float(ref), note))
+    return out
+
+
+# --------------------------------------------------------------------------- options
+
+
+@dataclass
+class Options:
+    out_dir: Path
+    realtime: bool = False
+    speed: float = 1.0  # virtual board speed for --realtime
+    yes: bool = False
+    answers: list[Answer] | None = None
+    config_path: str | None = None
+    live_args: argparse.Namespace | None = None  # source options for a live run
+    ask: Callable[[str], str] | None = None  # console input for operator steps
+    say: Callable[[str], None] = lambda text: None
+    plots: bool = True
+    command: str = field(default_factory=lambda: " ".join(sys.argv))
+
+
+@dataclass
+class Outcome:
+    """A finished acceptance run."""
+
+    plan: Plan
+    verdict: str
+    measurements: list[Measurement]
+    run: RunData | None
+    config: Config
+    mode: str
+    source: str
+    started_utc: str
+    finished_utc: str
+    wall_s: float
+    out_dir: Path
+    error: str | None = None
+    files: dict[str, Path] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)  # sim summary, stats, fault record
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_CODES[self.verdict]
+
+
+def has_live_source(args: argparse.Namespace | None) -> bool:
+    if args is None:
+        return False
+    names = ("interface", "channel", "bitrate", "serial", "emulate")
+    return any(getattr(args, n, None) is not None for n in names)
+
+
+# --------------------------------------------------------------------------- collecting
+
+
+class Collector:
+    """A sink that keeps every result and event of the run (thread-safe: a LiveRunner
+    writes from its processing thread while the step engine reads the run time)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._results: list[np.ndarray] = []
+        self._events: list[np.ndarray] = []
+        self.last_n: int | None = None
+        self.first_n: int | None = None
+        self.updated = time.monotonic()
+
+    def write(self, step: StepOutput) -> None:
+        with self._lock:
+            if len(step.results):
+                self._results.append(step.results)
+                if self.first_n is None:
+                    self.first_n = int(step.results["n"][0])
+                self.last_n = int(step.results["n"][-1])
+                self.updated = time.monotonic()
+            if len(step.events):
+                self._events.append(step.events)
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def results(self) -> np.ndarray:
+        with self._lock:
+            parts = list(self._results)
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
+
+    def events(self) -> np.ndarray:
+        with self._lock:
+            parts = list(self._events)
+        return concat_events(parts) if parts else np.zeros(0, dtype=EVENT_DTYPE)
+
+
+# --------------------------------------------------------------------------- sources
+
+
+def can_batches(frames: np.ndarray, size: int = BATCH_FRAMES) -> Iterator[SourceBatch]:
+    for i in range(0, len(frames), size):
+        yield SourceBatch(frames[i : i + size])
+
+
+def uart_batches(sim: Any, packets_per_batch: int = 2048) -> Iterator[SourceBatch]:
+    """The UART byte stream as a receiver sees it: packet by packet at its send time, so
+    frames get receive times and broken packets become link errors at their own time."""
+    from protocol.frames import frames_from_raw
+    from protocol.uart import Deframer
+
+    stream = sim.uart_stream()
+    data, ends, times = stream.data, stream.packet_end, stream.packet_t
+    de = Deframer()
+    start = 0
+    for i0 in range(0, len(ends), packets_per_batch):
+        raw: list[Any] = []
+        errors: list[Any] = []
+        for i in range(i0, min(i0 + packets_per_batch, len(ends))):
+            end = int(ends[i])
+            fr, er = de.feed(data[start:end], float(times[i]))
+            raw += fr
+            errors += er
+            start = end
+        yield SourceBatch(frames_from_raw(raw), errors)
+    tail_frames, tail_errors = de.feed(data[start:], float(times[-1]) if len(times) else 0.0)
+    _, flushed = de.flush()
+    if tail_frames or tail_errors or flushed:
+        yield SourceBatch(frames_from_raw(tail_frames), tail_errors + flushed)
+
+
+def fault_infos(sim: Any, link: str) -> tuple[FaultInfo, ...]:
+    """The emulator's record of what each fault did, as the checks need it."""
+    from devices.emulator.faults import target_channels
+
+    effects = list(sim.effects)
+    if link == "uart":
+        effects += list(sim.uart_effects())
+    out = []
+    for e in sorted(effects, key=lambda e: e.fault.index):
+        f = e.fault
+        onset = int(np.min(e.samples)) if len(e.samples) else None
+        out.append(
+            FaultInfo(
+                f.index, f.kind, target_channels(f), f.label, f.start_s, f.end_s, onset, e.count
+            )
+        )
+    return tuple(out)
+
+
+def count_logged_frames(path: Path) -> int:
+    """Frames in an MCAP log, counted from the file itself (not from the writer)."""
+    from bench.mcaplog import schemas
+    from bench.mcaplog.reader import McapLog
+
+    with McapLog(path) as log:
+        return int(log.message_counts().get(schemas.FRAME_TOPIC, 0))
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
+
+
+def run_config(plan: Plan, config_path: str | None) -> Config:
+    """--config wins (a real board's calibration sheet); else the emulated board as built
+    with the plan's [config] overlay; else the nominal values with the overlay."""
+    if config_path:
+        return load_config(config_path)
+    return plan.config()
+
+
+def schedule_steps(
+    steps: tuple[Step, ...], answers: list[Answer] | None, begin_s: float = 0.0
+) -> tuple[StepWindow, ...]:
+    """Windows of steps answered at once (emulated runs): each starts at its at_s or when
+    the previous one ended, whichever is later."""
+    out = []
+    t = begin_s
+    for s in steps:
+        a = _answer_for(s, answers)
+        if a.answer == "abort":
+            raise BenchError(f"step {s.index} aborted by the steps file")
+        start = max(t, s.at_s or 0.0)
+        out.append(_window(s, a, start))
+        t = start + (0.0 if a.answer == "skip" else s.settle_s + s.measure_s)
+    return tuple(out)
+
+
+def _answer_for(step: Step, answers: list[Answer] | None) -> Answer:
+    if answers is None:
+        return Answer()
+    if step.index > len(answers):
+        raise BenchError(
+            f"the steps file answers {len(answers)} steps, the plan has step {step.index}"
+        )
+    return answers[step.index - 1]
+
+
+def _window(step: Step, a: Answer, start: float) -> StepWindow:
+    expected = step.gradient_permil if a.reference_permil is None else a.reference_permil
+    frm = start + step.settle_s
+    return StepWindow(
+        step.index, step.prompt, expected, start, frm, frm + step.measure_s, a.answer, a.note
+    )
+
+
+def _metadata(plan: Plan, config: Config, source: str, mode: str, command: str) -> dict[str, str]:
+    meta = {
+        "bench_version": __version__,
+        "source": source,
+        "config_source": config.source,
+        "config_toml": config.to_toml(),
+        "command": command,
+        "started_utc": _now(),
+        "acceptance_plan": plan.name,
+        "acceptance_mode": mode,
+    }
+    if plan.scenario is not None:
+        meta["scenario"] = plan.scenario_ref or f"{plan.name} [scenario]"
+    return meta
+
+
+def _attachments(plan: Plan, config: Config) -> list[tuple[str, bytes]]:
+    out = [(f"plan-{plan.name}.toml", plan.text.encode())]
+    if plan.scenario is not None:
+        out.append(("scenario.toml", plan.scenario_toml().encode()))
+    out.append(("config.toml", config.to_toml().encode()))
+    return out
+
+
+def _rate(config: Config, pipeline: Pipeline | None, sim: Any) -> float:
+    if sim is not None:
+        return float(sim.scenario.sample_rate_hz)
+    if pipeline is not None and pipeline.assembler.rate_known:
+        return 1.0 / (pipeline.assembler.period_ticks * 1e-4)
+    return float(config.sample_rate_hz)
+
+
+def _run_data(
+    collector: Collector,
+    *,
+    sim: Any,
+    link: str,
+    rate: float,
+    mode: str,
+    frames_sent: int | None,
+    frames_received: int,
+    frames_logged: int | None,
+    frames_dropped: int = 0,
+    steps: tuple[StepWindow, ...] = (),
+    latency_ms: tuple[float, float] | None = None,
+) -> RunData:
+    results = collector.results()
+    if sim is not None:
+        n_ref = int(sim.scenario.counter0)
+    else:
+        n_ref = int(results["n"][0]) if len(results) else 0
+    return RunData(
+        results=results,
+        events=collector.events(),
+        rate_hz=rate,
+        n_ref=n_ref,
+        truth_gradient=None if sim is None else sim.truth["gradient_permil"].copy(),
+        faults=() if sim is None else fault_infos(sim, link),
+        frames_sent=frames_sent,
+        frames_received=frames_received,
+        frames_logged=frames_logged,
+        frames_dropped=frames_dropped,
+        steps=steps,
+        latency_ms=latency_ms,
+        mode=mode,
+        link=link,
+    )
+
+
+def _uart_sent(sim: Any) -> int:
+    stream = sim.uart_stream()
+    return len(stream) - stream.packets_broken
+
+
+# --------------------------------------------------------------------------- run modes
+
+
+def _run_emulated(
+    plan: Plan, config: Config, opts: Options, info: dict[str, Any]
+) -> tuple[RunData, str]:
+    """Simulate, then the pipeline as fast as it goes, logging to DIR/run.mcap."""
+    from bench.mcaplog.writer import McapSink
+    from devices.emulator import simulate
+
+    sim = simulate(plan.scenario)
+    info["simulation"] = sim.summary()
+    source = f"emulated {plan.name} ({plan.link.upper()}, as fast as possible)"
+    steps = schedule_steps(plan.steps, opts.answers)
+    mcap_path = opts.out_dir / "run.mcap"
+    sink = McapSink(
+        mcap_path,
+        config,
+        _metadata(plan, config, source, "emulated", opts.command),
+        _attachments(plan, config),
+    )
+    collector = Collector()
+    pipeline = Pipeline(config)
+    batches = uart_batches(sim) if plan.link == "uart" else can_batches(sim.frames)
+    try:
+        for step in run_steps(pipeline, batches):
+            sink.write(step)
+            collector.write(step)
+    finally:
+        sink.close()
+    info["stats"] = pipeline.stats.as_dict()
+    sent = _uart_sent(sim) if plan.link == "uart" else len(sim.frames)
+    run = _run_data(
+        collector,
+        sim=sim,
+        link=plan.link,
+        rate=_rate(config, pipeline, sim),
+        mode="emulated",
+        frames_sent=sent,
+        frames_received=pipeline.stats.frames,
+        frames_logged=count_logged_frames(mcap_path),
+        steps=steps,
+    )
+    return run, source
+
+
+def _run_live(
+    plan: Plan, config: Config, opts: Options, info: dict[str, Any], setup: Any, mode: str
+) -> tuple[RunData, str]:
+    """LiveRunner on an open source; operator steps in this thread; stop when done."""
+    from bench.live import LiveRunner
+    from bench.liveopts import run_metadata
+    from bench.mcaplog.writer import McapSink
+
+    player = setup.emulator
+    sim = getattr(player, "simulation", None)
+    if sim is not None:
+        info["simulation"] = sim.summary()
+    meta = run_metadata(
+        setup,
+        config,
+        {"acceptance_plan": plan.name, "acceptance_mode": mode, "command": opts.command},
+    )
+    mcap_path = opts.out_dir / "run.mcap"
+    sink = McapSink(mcap_path, config, meta, _attachments(plan, config))
+    collector = Collector()
+    runner = LiveRunner(setup.source, config, [sink, collector], description=setup.description)
+    runner.recording = sink
+    n_ref = int(sim.scenario.counter0) if sim is not None else None
+    rate = float(sim.scenario.sample_rate_hz) if sim is not None else float(config.sample_rate_hz)
+
+    def run_time() -> float | None:
+        if collector.last_n is None:
+            return None
+        ref = n_ref if n_ref is not None else collector.first_n
+        return (collector.last_n - ref) / rate  # type: ignore[operator]
+
+    def wait_until(t_s: float, what: str) -> None:
+        while True:
+            now = run_time()
+            if now is not None and now >= t_s:
+                return
+            if player is not None and player.done and time.monotonic() - collector.updated > 1:
+                raise BenchError(f"the virtual board finished before {what} ({t_s:g} s)")
+            if time.monotonic() - collector.updated > SILENCE_S:
+                raise BenchError(f"no sample from the board for {SILENCE_S:g} s ({what})")
+            if runner.error:
+                raise BenchError(runner.error)
+            time.sleep(0.02)
+
+    windows: list[StepWindow] = []
+    runner.start()
+    try:
+        collector.updated = time.monotonic()
+        for s in plan.steps:
+            if s.at_s is not None:
+                wait_until(s.at_s, f"step {s.index}")
+            a = _ask(s, opts)
+            if a.answer == "abort":
+                raise BenchError(f"step {s.index} aborted by the operator")
+            start = run_time() or 0.0
+            w = _window(s, a, start)
+            windows.append(w)
+            runner.mark(f"step {s.index} {a.answer}: {s.prompt} (expect {w.expected_permil:g})")
+            if a.answer != "skip":
+                opts.say(f"step {s.index}: settling {s.settle_s:g} s, measuring {s.measure_s:g} s")
+                wait_until(w.to_s, f"the end of step {s.index}")
+        if not plan.steps and plan.duration_s is not None:
+            wait_until(plan.duration_s, "the plan's duration_s")
+        if player is not None and (not plan.steps or mode == "realtime"):
+            while not player.done:
+                if runner.error:
+                    raise BenchError(runner.error)
+                time.sleep(0.05)
+            time.sleep(DRAIN_S)
+    finally:
+        if player is not None:
+            player.stop()
+        runner.stop()
+        setup.close()
+    if runner.error:
+        raise BenchError(runner.error)
+    info["stats"] = runner.pipeline.stats.as_dict()
+    sent = getattr(player, "frames_sent", None) if player is not None else None
+    snap = runner.snapshot(last=1)
+    run = _run_data(
+        collector,
+        sim=sim,
+        link="uart" if getattr(opts.live_args, "serial", None) else "can",
+        rate=_rate(config, runner.pipeline, sim),
+        mode=mode,
+        frames_sent=sent,
+        frames_received=runner.pipeline.stats.frames,
+        frames_logged=count_logged_frames(mcap_path),
+        frames_dropped=runner.frames_dropped,
+        steps=tuple(windows),
+        latency_ms=snap.latency_ms,
+    )
+    return run, setup.description
+
+
+def _ask(step: Step, opts: Options) -> Answer:
+    if opts.answers is not None:
+        a = _answer_for(step, opts.answers)
+        opts.say(f"step {step.index}: {step.prompt} -> {a.answer} (steps file)")
+        return a
+    if opts.yes:
+        opts.say(f"step {step.index}: {step.prompt} -> ok (--yes)")
+        return Answer()
+    ask = opts.ask or input
+    text = (
+        f"\nstep {step.index}: {step.prompt}\n"
+        f"  expected {step.gradient_permil:g} permil. Enter = go on, a number = the reference "
+        "reading in permil, s = skip, q = abort: "
+    )
+    try:
+        return parse_answer(ask(text))
+    except EOFError:
+        return Answer("abort")
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def prepare_out_dir(path: Path) -> Path:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BenchError(f"cannot create output folder {path}: {exc.strerror or exc}") from None
+    return path
+
+
+def run_plan(plan: Plan, opts: Options) -> Outcome:
+    """Run a plan and measure its checks; write junit.xml, record.json, report.html.
+
+    Operator mistakes found before the run starts (no source, bad config, no way to answer
+    the steps) raise BenchError; anything after that is verdict "error" in the record."""
+    from bench.liveopts import open_emulator, open_live
+
+    out = prepare_out_dir(opts.out_dir)
+    config = run_config(plan, opts.config_path)
+    live = has_live_source(opts.live_args)
+    if live:
+        mode = "live"
+    elif plan.emulated:
+        mode = "realtime" if opts.realtime else "emulated"
+    else:
+        raise BenchError(
+            f"plan {plan.name!r} has no scenario: it runs against a board "
+            "(give --interface/--channel, --serial PORT or --emulate SCENARIO)"
+        )
+    if mode == "realtime" and plan.link == "uart":
+        raise BenchError(
+            f"plan {plan.name!r} listens on the UART: --realtime plays the virtual board on "
+            "CAN only (run it without --realtime, or on a serial port)"
+        )
+    if (
+        mode != "emulated"
+        and plan.steps
+        and not opts.yes
+        and opts.answers is None
+        and opts.ask is None
+        and not sys.stdin.isatty()
+    ):
+        raise BenchError(
+            "the plan has operator steps and nobody to answer them: "
+            "use --yes or --steps FILE for an unattended run"
+        )
+    setup = None
+    if mode == "live":
+        setup = open_live(opts.live_args)  # type: ignore[arg-type]
+    elif mode == "realtime":
+        scenario_path = out / "scenario.toml"
+        scenario_path.write_text(plan.scenario_toml(), encoding="utf-8")
+        setup = open_emulator(scenario_path, speed=opts.speed)
+    started = _now()
+    t0 = time.monotonic()
+    info: dict[str, Any] = {}
+    run: RunData | None = None
+    error: str | None = None
+    source = setup.description if setup is not None else f"emulated {plan.name}"
+    try:
+        if setup is None:
+            run, source = _run_emulated(plan, config, opts, info)
+        else:
+            run, source = _run_live(plan, config, opts, info, setup, mode)
+        measurements = [run_check(c, run) for c in plan.checks]
+    except KeyboardInterrupt:
+        error = "interrupted by the operator"
+    except BenchError as exc:
+        error = str(exc)
+    except Exception as exc:  # the bench failed: say so in the record, exit 2
+        error = f"the bench failed: {exc!r}"
+    if error is not None:
+        measurements = [not_measured(c, "error", f"not measured: {error}") for c in plan.checks]
+    verdict = "error" if error is not None else overall(measurements)
+    outcome = Outcome(
+        plan=plan,
+        verdict=verdict,
+        measurements=measurements,
+        run=run,
+        config=config,
+        mode=mode,
+        source=source,
+        started_utc=started,
+        finished_utc=_now(),
+        wall_s=time.monotonic() - t0,
+        out_dir=out,
+        error=error,
+        info=info,
+    )
+    from bench.acceptance.report import write_reports
+
+    write_reports(outcome, plots=opts.plots)
+    return outcome
+
+
+def remeasure(outcome: Outcome, mcap_path: Path | None = None) -> list[Measurement]:
+    """The checks again, from the run's MCAP log replayed through a fresh pipeline.
+
+    What the log cannot hold (emulator truth, fault record, frames sent, step windows) is
+    taken from the original run; samples, events and frame counts come from the file."""
+    from devices.files import open_log
+
+    assert outcome.run is not None
+    path = mcap_path or outcome.files["mcap"]
+    source = open_log(path)
+    collector = Collector()
+    pipeline = Pipeline(outcome.config)
+    try:
+        for step in run_steps(pipeline, source.batches(BATCH_FRAMES)):
+            collector.write(step)
+    finally:
+        source.close()
+    old = outcome.run
+    run = RunData(
+        results=collector.results(),
+        events=collector.events(),
+        rate_hz=old.rate_hz,
+        n_ref=old.n_ref,
+        truth_gradient=old.truth_gradient,
+        faults=old.faults,
+        frames_sent=old.frames_sent,
+        frames_received=pipeline.stats.frames,
+        frames_logged=count_logged_frames(path),
+        frames_dropped=old.frames_dropped,
+        steps=old.steps,
+        latency_ms=old.latency_ms,
+        mode=old.mode,
+        link=old.link,
+    )
+    return [run_check(c, run) for c in outcome.plan.checks]

@@ -1,0 +1,74 @@
+"""`bench demo`: the TUI on the in-process virtual board running the built-in demo scenario.
+
+The quickest way to see the bench work: no hardware, no options. The board is calibrated
+with the scenario's as-built values (as a real bench would be from its calibration sheet),
+so what goes wrong on screen is the faults the scenario injects, not a calibration error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tomllib
+from pathlib import Path
+
+import devices
+from bench.config import Config, config_from_dict, load_config
+from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments, open_emulator, open_recording
+
+DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.toml"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "demo",
+        help="the TUI on the built-in virtual board: a grade profile, faults coming and going",
+        description="Open the bench TUI on the in-process virtual board playing the demo "
+        "scenario (10 min over hills with faults coming and going), logging to logs/ like "
+        "`bench run`. Keys: p pause display, r record, m mark, +/- tolerance, q quit.",
+    )
+    p.add_argument(
+        "--scenario",
+        metavar="SCENARIO",
+        default=str(DEMO_SCENARIO),
+        help="another scenario file or built-in name (default: the demo)",
+    )
+    p.add_argument(
+        "--speed", type=float, default=1.0, help="emulator time factor (default 1 = real time)"
+    )
+    p.add_argument(
+        "--config", help="calibration config (TOML); default: the scenario board's calibration"
+    )
+    add_log_arguments(p)
+    p.set_defaults(func=run)
+
+
+def scenario_config(path: Path) -> Config:
+    """The calibration matching the virtual board as built (devices.emulator.calibration_toml)."""
+    from devices.emulator import calibration_toml, load_scenario
+
+    return config_from_dict(
+        tomllib.loads(calibration_toml(load_scenario(path))), source=f"{path.name} calibration"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.commands.tui import report
+    from bench.tui.session import live_session, run_tui
+    from devices.emulator.scenario import resolve_scenario_path
+
+    path = resolve_scenario_path(args.scenario)
+    config = load_config(args.config) if args.config else scenario_config(path)
+    setup = open_emulator(path, speed=args.speed)
+    try:
+        first = open_recording(
+            args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
+        )
+    except Exception:
+        setup.close()
+        raise
+    log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
+    session = live_session(setup, config, first, log_dir)
+    code = run_tui(session)
+    report(session)
+    return code

@@ -1,0 +1,90 @@
+"""`bench tui`: the live bench screen (bus, serial, in-process emulator) or a log replayed in it."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from bench.config import load_config
+from bench.errors import BenchError
+from bench.liveopts import DEFAULT_LOG_DIR, add_live_arguments, open_live, open_recording
+
+SPEED_CHOICES = {"1": 1.0, "1x": 1.0, "10": 10.0, "10x": 10.0, "max": None}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "tui",
+        help="live screen: per-pair values, votes, gradient plot, board, events, recording",
+        description="Watch fusion sample by sample on a live source, logging to MCAP "
+        "(r starts/stops a recording, m marks, +/- tolerance, p pauses the display, q quits "
+        "and finishes the log). With --replay FILE, play a recorded log in the same screen. "
+        "See docs/TUI.md.",
+    )
+    add_live_arguments(p)
+    g = p.add_argument_group("replay")
+    g.add_argument(
+        "--replay",
+        metavar="FILE",
+        help="replay a log (.log .asc .blf .trc .csv .bin .mcap) instead of a live source; "
+        "not recorded unless --mcap is given",
+    )
+    g.add_argument(
+        "--speed",
+        choices=sorted(SPEED_CHOICES),
+        default="1",
+        help="replay speed: 1, 10 or max (default 1; s cycles it in the TUI)",
+    )
+    g.add_argument("--paused", action="store_true", help="start the replay paused (space plays)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.tui.session import live_session, replay_setup, run_tui
+
+    config = load_config(args.config)
+    warn = lambda m: print(f"bench: {m}", file=sys.stderr)  # noqa: E731
+    log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
+    if args.replay:
+        given = [
+            opt
+            for opt, value in (
+                ("--emulate", args.emulate),
+                ("--interface", args.interface),
+                ("--channel", args.channel),
+                ("--serial", args.serial),
+            )
+            if value
+        ]
+        if given:
+            raise BenchError(f"--replay cannot be combined with {'/'.join(given)}")
+        setup = replay_setup(
+            args.replay, config, speed=SPEED_CHOICES[args.speed], paused=args.paused
+        )
+        first = None
+        if args.mcap and not args.no_log:
+            from bench.liveopts import start_recording
+
+            first = start_recording(Path(args.mcap), setup, config)
+    else:
+        setup = open_live(args)
+        try:
+            first = open_recording(args, setup, config, warn=warn)
+        except BenchError:
+            setup.close()
+            raise
+    session = live_session(setup, config, first, log_dir)
+    code = run_tui(session)
+    report(session)
+    return code
+
+
+def report(session: object) -> None:
+    """After the screen closes: which logs were written, and any error the run hit."""
+    rec = getattr(session, "recorder", None)
+    for path in getattr(rec, "files", []):
+        print(f"bench: log written: {path}", file=sys.stderr)
+    runner = getattr(session, "runner", None)
+    if runner is not None and runner.error:
+        print(f"bench: error: {runner.error}", file=sys.stderr)

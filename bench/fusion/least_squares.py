@@ -1,0 +1,105 @@
+"""Least-squares specific force (u, w) from any subset of the three channels (METHOD.md s. 5).
+
+Each channel measures a_i = u*cos(theta_i) + w*sin(theta_i), linear in (u, w), so every
+channel subset has a fixed pseudo-inverse: one per 3-bit channel mask, precomputed per
+config and applied as ``c0*a0 + c1*a1 + c2*a2`` in that order. Only IEEE-exact element-wise
+operations (+ - * / sqrt) are used, so a row gives the same float64 in a numpy batch of any
+length and in the scalar twins below (live pushes of one sample) -- bit for bit.
+
+With all three channels there is one redundant equation. Its parity vector
+p = (cos th) x (sin th), normalised, is orthogonal to both columns, so p . a is the signed
+length of the least-squares residual vector: zero for consistent channels whatever the
+gradient and acceleration, and e * p_k for an error e on channel k.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+FULL = 7
+"""Mask code with all three channels; code = 1*ch1 + 2*ch2 + 4*ch3."""
+PAIR_MASKS = (6, 5, 3)
+"""Mask of the pair that leaves out ch1, ch2, ch3 respectively."""
+Row = tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class Geometry:
+    pinv: tuple[tuple[Row, Row], ...]  # per mask: (u row, w row); NaN rows below 2 channels
+    parity: Row  # unit parity vector
+    pinv_array: np.ndarray  # (8, 2, 3), the same numbers for fancy indexing
+
+
+def geometry(angles_rad: tuple[float, float, float] | np.ndarray) -> Geometry:
+    th = np.asarray(angles_rad, dtype=np.float64)
+    h = np.column_stack([np.cos(th), np.sin(th)])
+    pinv = np.full((8, 2, 3), np.nan)
+    for code in range(8):
+        used = [k for k in range(3) if code & (1 << k)]
+        if len(used) >= 2:
+            p = np.zeros((2, 3))
+            p[:, used] = np.linalg.pinv(h[used])
+            pinv[code] = p
+    parity = np.cross(h[:, 0], h[:, 1])
+    parity /= np.linalg.norm(parity)
+    rows = tuple((tuple(p[0].tolist()), tuple(p[1].tolist())) for p in pinv)
+    return Geometry(rows, tuple(parity.tolist()), pinv)  # type: ignore[arg-type]
+
+
+def mask_code(used: np.ndarray) -> np.ndarray:
+    """(N, 3) bool -> (N,) mask code."""
+    return used[:, 0] + 2 * used[:, 1].astype(np.int64) + 4 * used[:, 2].astype(np.int64)
+
+
+def combine(c: Row | np.ndarray, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
+    """c0*a0 + c1*a1 + c2*a2 in that order (c: a row, or (N, 3) rows)."""
+    return (
+        c[..., 0] * a0 + c[..., 1] * a1 + c[..., 2] * a2
+        if isinstance(c, np.ndarray)
+        else (c[0] * a0 + c[1] * a1 + c[2] * a2)
+    )
+
+
+def solve(acc: np.ndarray, code: np.ndarray, geo: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """(u, w) per row from the channels of its mask code (NaN below 2 channels).
+
+    ``acc`` must be finite wherever the mask uses it (0 elsewhere)."""
+    p = geo.pinv_array[code]
+    a0, a1, a2 = acc[:, 0], acc[:, 1], acc[:, 2]
+    return combine(p[:, 0], a0, a1, a2), combine(p[:, 1], a0, a1, a2)
+
+
+def solve_one(a: Row, code: int, geo: Geometry) -> tuple[float, float]:
+    """Scalar twin of :func:`solve`."""
+    pu, pw = geo.pinv[code]
+    return combine(pu, *a), combine(pw, *a)
+
+
+def signed_gradient(u: np.ndarray, w: np.ndarray, a_ref: np.ndarray) -> np.ndarray:
+    """1000 * tan(atan2(u - a_ref, w)) = 1000 * (u - a_ref) / w per mille; NaN unless w > 0."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = 1000.0 * (u - a_ref) / w
+    out[~(w > 0.0)] = np.nan
+    return out
+
+
+def signed_gradient_one(u: float, w: float, a_ref: float) -> float:
+    return 1000.0 * (u - a_ref) / w if w > 0.0 else math.nan
+
+
+def magnitude_gradient(w: np.ndarray, g: float) -> np.ndarray:
+    """Unsigned 1000 * tan(arccos(w/g)) written as 1000 * sqrt((1-c)(1+c)) / c, c = w/g
+    clamped to 1 (noise); NaN unless c > 0. No a_ref needed: the analogue of the reference."""
+    c = np.minimum(w / g, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = 1000.0 * np.sqrt((1.0 - c) * (1.0 + c)) / c
+    out[~(c > 0.0)] = np.nan
+    return out
+
+
+def magnitude_gradient_one(w: float, g: float) -> float:
+    c = min(w / g, 1.0)
+    return 1000.0 * math.sqrt((1.0 - c) * (1.0 + c)) / c if c > 0.0 else math.nan

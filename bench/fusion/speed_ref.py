@@ -1,0 +1,174 @@
+"""Reference acceleration a_ref from SPEED_REF, aligned to the board's samples.
+
+Causality (what makes the output independent of batching): speed frames are buffered,
+and a sample applies exactly the buffered frames whose arrival index ``seq`` is below the
+largest ``seq`` of all samples so far (``R``). That set depends only on the stream, never on
+where a batch ends, and it never contains a frame that arrived after the sample's data.
+``R`` is non-decreasing, so frames are applied in arrival order, each exactly once, and
+the filter (:class:`~bench.fusion.kalman.SpeedKalman`) runs once over the whole stream.
+The first sample that applies a frame is its *anchor*.
+
+Clock alignment. Board time b (sample ticks, unwrapped) and odometer time o (frame
+timestamps, unwrapped here) run on two unsynchronised 100 us clocks. Where receive times
+t are finite, each stream's offset to the receive clock is the least observed latency
+``min(t - clock)``, made leaky (it may rise by ``clock_drift_ppm`` per second) so it
+follows a clock that runs slow. A frame measured at o then happened at board time
+o + off_odo - off_board (off_board taken at the frame's anchor). The constant latency
+both minima leave in is the same bus's, so it cancels to within the frames' jitter.
+Without receive times (a NaN anywhere involved) the fallback is arrival order: a frame
+counts as measured at its anchor's board time, and the odometer's 6.5536 s timestamp
+wraps are resolved from the anchors' board-time steps instead of receive-time steps.
+
+What the alignment decides: the age of the newest applied frame at each sample's instant
+(coasting: after ``coast_s`` without SPEED_REF a_ref is unavailable, NaN). With the
+constant-acceleration model the acceleration predicted to any later instant equals the
+filter's latest estimate, so no extrapolation is applied to the value itself.
+
+Standstill: when the odometer has reported exactly 0 mm/s for ``standstill_s`` of its
+own time, a_ref is exactly 0.0. A gap longer than ``coast_s`` between frames restarts the
+filter. a_ref is also unavailable until the filter's own acceleration uncertainty is
+below ``a_ref_sigma_mps2`` (the first fraction of a second after a start).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bench.config import EstimatorSettings
+from bench.fusion.isolation import NEVER
+from bench.fusion.kalman import SpeedKalman
+from bench.records import SPEED_DTYPE
+from protocol.layout import TICK_S, TS_WRAP
+
+_INF = math.inf
+
+
+def leaky_min(
+    x: np.ndarray, clock_s: np.ndarray, rho: float, base: float
+) -> tuple[np.ndarray, float]:
+    """Offsets min_j<=i (x_j + rho*(clock_i - clock_j)) for every i, non-finite x skipped.
+
+    Computed as rho*clock_i + running min of (x_j - rho*clock_j): exact (min does not
+    round), so the same whatever the batching. ``base`` carries the running min.
+    """
+    y = np.where(np.isfinite(x), x - rho * clock_s, _INF)
+    run = np.minimum.accumulate(np.concatenate(([base], y)))[1:]
+    with np.errstate(invalid="ignore"):
+        out = np.where(np.isfinite(run), rho * clock_s + run, np.nan)
+    return out, float(run[-1]) if len(run) else base
+
+
+class ReferenceAcceleration:
+    """Stateful: :meth:`push` (batch) or :meth:`step` (one sample) in sample order."""
+
+    def __init__(self, settings: EstimatorSettings) -> None:
+        self.settings = settings
+        self.kf = SpeedKalman(settings.speed_noise_mps, settings.jerk_psd)
+        self.rho = settings.clock_drift_ppm * 1e-6
+        self._pending = np.zeros(0, dtype=SPEED_DTYPE)  # buffered, not yet applied
+        self._max_seq = -1  # R: largest sample seq so far
+        self._board_base = _INF  # running min for the board offset
+        self._odo_base = _INF  # running min for the odometer offset
+        self._started = False
+        # the last applied frame, for unwrapping the odometer timestamp
+        self._prev_ts = 0
+        self._prev_t = math.nan
+        self._prev_anchor_b = 0.0
+        self._odo_ticks = 0
+        self._zero_since: int | None = None  # odometer ticks of the first 0 mm/s of a run
+        # the newest applied frame: acceleration, board time, standstill, filter settled
+        self._last: tuple[float, float, bool, bool] = (math.nan, math.nan, False, False)
+
+    def buffer(self, speeds: np.ndarray) -> None:
+        if len(speeds):
+            self._pending = np.concatenate([self._pending, speeds])
+
+    def push(self, samples: np.ndarray) -> np.ndarray:
+        """a_ref (m/s^2, NaN = unavailable) for each sample, in order."""
+        b = samples["ticks"] * TICK_S  # board time, s
+        board_off, self._board_base = leaky_min(samples["t"] - b, b, self.rho, self._board_base)
+        run_max = np.maximum.accumulate(np.maximum(samples["seq"], self._max_seq))
+        self._max_seq = int(run_max[-1])
+        count = np.searchsorted(self._pending["seq"], run_max, side="left")  # frames applied
+        k_new = int(count[-1])
+        acc, when, still, ok = (np.array([v]) for v in self._last)
+        if k_new:
+            anchors = np.searchsorted(count, np.arange(k_new), side="right")
+            new = self._apply(self._pending[:k_new], b[anchors], board_off[anchors])
+            self._pending = self._pending[k_new:]
+            acc, when, still, ok = (
+                np.concatenate([h, x]) for h, x in zip((acc, when, still, ok), new, strict=True)
+            )
+            self._last = (float(acc[-1]), float(when[-1]), bool(still[-1]), bool(ok[-1]))
+        acc, when, still, ok = acc[count], when[count], still[count], ok[count]
+        fresh = (b - when) <= self.settings.coast_s  # NaN (no frame yet) compares False
+        out = np.where(still, 0.0, acc)
+        out[~(fresh & (ok | still))] = np.nan
+        return out
+
+    def step(self, ticks: int, t: float, seq: int) -> float:
+        """Scalar twin of :meth:`push` for one sample."""
+        b = ticks * TICK_S
+        x = t - b
+        if math.isfinite(x):
+            self._board_base = min(self._board_base, x - self.rho * b)
+        base = self._board_base
+        off = self.rho * b + base if math.isfinite(base) else math.nan
+        self._max_seq = max(self._max_seq, seq)
+        pending = self._pending
+        if len(pending) and pending["seq"][0] < self._max_seq:
+            k = int(np.searchsorted(pending["seq"], self._max_seq, side="left"))
+            new = self._apply(pending[:k], np.full(k, b), np.full(k, off))
+            self._pending = pending[k:]
+            self._last = (float(new[0][-1]), float(new[1][-1]), bool(new[2][-1]), bool(new[3][-1]))
+        acc, when, still, ok = self._last
+        if not (b - when <= self.settings.coast_s and (ok or still)):
+            return math.nan
+        return 0.0 if still else acc
+
+    # -- internals -------------------------------------------------------------------------
+    def _apply(
+        self, frames: np.ndarray, anchor_b: np.ndarray, anchor_off: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Run the filter over newly applied frames (vectorised over frames, exact either
+        way); per frame: acceleration, board time, standstill, filter settled."""
+        s = self.settings
+        ts = frames["timestamp"].astype(np.int64)
+        t = frames["t"]
+        # unwrap the odometer timestamps (wraps from receive times, else from anchor times)
+        prev_ts = np.concatenate(([self._prev_ts], ts[:-1]))
+        prev_t = np.concatenate(([self._prev_t], t[:-1]))
+        prev_b = np.concatenate(([self._prev_anchor_b], anchor_b[:-1]))
+        d = (ts - prev_ts) % TS_WRAP
+        step = (t - prev_t) / TICK_S
+        step = np.where(np.isnan(step), (anchor_b - prev_b) / TICK_S, step)
+        d += TS_WRAP * np.maximum(np.rint((step - d) / TS_WRAP), 0.0).astype(np.int64)
+        restart = d > s.coast_s / TICK_S  # SPEED_REF was away too long: the state is stale
+        if not self._started:
+            d[0] = ts[0] - self._odo_ticks
+            restart[0] = True
+            self._started = True
+        odo = self._odo_ticks + np.cumsum(d)
+        # standstill: 0 mm/s without a break for standstill_s of odometer time
+        zero = frames["speed"] == 0
+        before = np.concatenate(([self._zero_since is not None], zero[:-1]))
+        starts = zero & (~before | restart)
+        carry = NEVER if self._zero_since is None else self._zero_since
+        since = np.maximum.accumulate(np.concatenate(([carry], np.where(starts, odo, NEVER))))[1:]
+        still = zero & (odo - since >= s.standstill_s / TICK_S)
+        # odometer time -> board time
+        o = odo * TICK_S
+        odo_off, self._odo_base = leaky_min(t - o, o, self.rho, self._odo_base)
+        with np.errstate(invalid="ignore"):
+            mapped = o + odo_off - anchor_off
+        when = np.where(np.isfinite(mapped), mapped, anchor_b)
+        speed = (frames["speed"] * 1e-3).tolist()
+        acc, var = self.kf.run((d * TICK_S).tolist(), speed, restart.tolist())
+        ok = np.array(var) <= s.a_ref_sigma_mps2 * s.a_ref_sigma_mps2
+        self._prev_ts, self._prev_t = int(ts[-1]), float(t[-1])
+        self._prev_anchor_b = float(anchor_b[-1])
+        self._odo_ticks = int(odo[-1])
+        self._zero_since = int(since[-1]) if zero[-1] else None
+        return np.array(acc), when, still, ok

@@ -1,0 +1,1144 @@
+"""Writing the bench's MCAP files: a small, fast chunked writer, the live-run sink, the emulator.
+
+Why not ``mcap.writer.Writer``: it builds every message record in Python (~120 k msg/s
+here), and it has no way to add a pre-built block of records. Raw frames are the bulk of
+a file and have a fixed-size encoding (see :mod:`bench.mcaplog.schemas`), so
+:class:`McapFile` writes a whole batch of them as one numpy buffer plus one vectorised
+MessageIndex. The non-bulk records (header, schemas, channels, metadata, attachments,
+summary) are serialised with the ``mcap`` package's own record classes, so the file
+layout is the reference implementation's.
+
+Crash safety: the live sink closes the current chunk (and flushes it to the OS) at least
+every ``flush_interval_s`` of wall time, so a kill -9 loses at most that much; a clean
+close writes the summary section (statistics, chunk/metadata/attachment indexes) and the
+footer. An unfinished file is still readable chunk by chunk (:mod:`bench.mcaplog.reader`).
+"""
+
+from __future__ import annotations
+
+import atexit
+import base64
+import contextlib
+import json
+import logging
+import math
+import platform
+import queue
+import struct
+import sys
+import threading
+import time
+import zlib
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    McapRecord,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+from bench import __version__
+from bench.config import Config
+from bench.events import EventKind, describe, make_events, severity
+from bench.mcaplog import schemas as S
+from bench.pipeline import StepOutput
+from bench.stats import Stats
+from protocol.batch import decode_batch
+from protocol.frames import FRAME_DTYPE, frames_from_raw
+from protocol.layout import DEFAULT_BASE, SPEED_REF_ID, Outcome
+from protocol.records import FLAG_UART, LinkError
+
+log = logging.getLogger("bench.mcaplog")
+
+MAGIC = b"\x89MCAP0\r\n"
+LIBRARY = f"gradient-bench/{__version__} bench.mcaplog"
+DEFAULT_CHUNK_SIZE = 4 << 20
+"""Uncompressed bytes per chunk before it is closed regardless of time (~60 k frames)."""
+DEFAULT_FLUSH_INTERVAL_S = 0.5
+"""A live chunk is closed and flushed when its first message is this old (wall time)."""
+_MAX_NS = (1 << 64) - 1
+_T_MAX_S = 1.8e10
+"""Receive times beyond this (year 2540) or negative cannot be a log_time: substituted."""
+
+
+def _media_type(name: str) -> str:
+    suffix = Path(name).suffix.lower()
+    return {
+        ".toml": "application/toml",
+        ".json": "application/json",
+        ".csv": "text/csv",
+        ".txt": "text/plain",
+        ".md": "text/markdown",
+        ".log": "text/plain",
+        ".dbc": "text/plain",
+    }.get(suffix, "application/octet-stream")
+
+
+def _utc_now() -> str:
+    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+# ------------------------------------------------------------------------------------------
+class McapFile:
+    """Append-only chunked MCAP writer (not thread-safe: one owner thread).
+
+    Messages go into the open chunk; :meth:`flush_chunk` compresses it, writes it with its
+    MessageIndex records and flushes the file object. :meth:`finish` writes DataEnd (with the
+    data-section CRC), the summary section and the footer. Every OSError propagates: the
+    caller decides what a failed disk means.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        compression: str = "zstd",
+        library: str = LIBRARY,
+        profile: str = S.PROFILE,
+    ) -> None:
+        if compression not in ("zstd", "lz4", ""):
+            raise ValueError(f"unsupported compression {compression!r}")
+        self.path = Path(path)
+        self.chunk_size = chunk_size
+        self.compression = compression
+        self._compress = _compressor(compression)
+        self._fh = open(self.path, "wb")  # noqa: SIM115 - owned until finish()/abort()
+        self.position = 0
+        self._crc = 0
+        self._schemas: list[Schema] = []
+        self._channels: list[Channel] = []
+        self._chunk_indexes: list[ChunkIndex] = []
+        self._metadata_indexes: list[MetadataIndex] = []
+        self._attachment_indexes: list[AttachmentIndex] = []
+        self._counts: Counter[int] = Counter()
+        self._t_min: int | None = None
+        self._t_max = 0
+        self._reset_chunk()
+        self.closed = False
+        self._write(MAGIC)
+        self._record(Header(profile=profile, library=library))
+
+    # -- low level -------------------------------------------------------------------------
+    def _reset_chunk(self) -> None:
+        self._parts: list[bytes] = []
+        self._chunk_len = 0
+        self._chunk_index: dict[int, list[np.ndarray]] = {}
+        self._chunk_counts: Counter[int] = Counter()
+        self._chunk_start = _MAX_NS
+        self._chunk_end = 0
+
+    def _write(self, data: bytes | memoryview) -> None:
+        self._fh.write(data)
+        self._crc = zlib.crc32(data, self._crc)
+        self.position += len(data)
+
+    def _record(self, record: McapRecord) -> tuple[int, int]:
+        """Serialise one record with the mcap package; returns (offset, length)."""
+        builder = RecordBuilder()
+        record.write(builder)
+        data = builder.end()
+        offset = self.position
+        self._write(data)
+        return offset, len(data)
+
+    @property
+    def pending_messages(self) -> int:
+        return sum(self._chunk_counts.values())
+
+    # -- definitions -----------------------------------------------------------------------
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        schema = Schema(id=len(self._schemas) + 1, name=name, encoding=encoding, data=data)
+        self._schemas.append(schema)
+        self._record(schema)
+        return schema.id
+
+    def add_channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int,
+        metadata: Mapping[str, str] | None = None,
+    ) -> int:
+        channel = Channel(
+            id=len(self._channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            schema_id=schema_id,
+            metadata=dict(metadata or {}),
+        )
+        self._channels.append(channel)
+        self._record(channel)
+        return channel.id
+
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        offset, length = self._record(
+            Metadata(name=name, metadata={str(k): str(v) for k, v in data.items()})
+        )
+        self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+
+    def add_attachment(
+        self, name: str, data: bytes, media_type: str = "", log_time: int = 0
+    ) -> None:
+        media_type = media_type or _media_type(name)
+        att = Attachment(
+            create_time=log_time,
+            log_time=log_time,
+            name=name,
+            media_type=media_type,
+            data=bytes(data),
+        )
+        offset, length = self._record(att)
+        self._attachment_indexes.append(
+            AttachmentIndex(
+                offset=offset,
+                length=length,
+                log_time=log_time,
+                create_time=log_time,
+                data_size=len(att.data),
+                name=name,
+                media_type=media_type,
+            )
+        )
+
+    # -- messages --------------------------------------------------------------------------
+    def _add_block(
+        self, channel_id: int, block: bytes, log_times: np.ndarray, rel_offsets: np.ndarray
+    ) -> None:
+        n = len(log_times)
+        if n == 0:
+            return
+        entries = np.empty((n, 2), dtype="<u8")
+        entries[:, 0] = log_times
+        entries[:, 1] = rel_offsets + self._chunk_len
+        self._chunk_index.setdefault(channel_id, []).append(entries)
+        self._chunk_counts[channel_id] += n
+        self._parts.append(block)
+        self._chunk_len += len(block)
+        self._chunk_start = min(self._chunk_start, int(log_times.min()))
+        self._chunk_end = max(self._chunk_end, int(log_times.max()))
+
+    def add_fixed_records(self, channel_id: int, records: np.ndarray) -> None:
+        """Append complete, already filled Message records of one fixed size (a structured
+        array whose dtype starts with schemas.MESSAGE_HEADER)."""
+        size = records.dtype.itemsize
+        self._add_block(
+            channel_id,
+            records.tobytes(),
+            records["log_time"],
+            np.arange(len(records), dtype=np.uint64) * np.uint64(size),
+        )
+
+    def add_messages(
+        self,
+        channel_id: int,
+        log_times: np.ndarray,
+        payloads: Sequence[bytes],
+        sequences: Sequence[int] | np.ndarray,
+    ) -> None:
+        """Append variable-size messages (JSON) to the open chunk."""
+        if not payloads:
+            return
+        pack = struct.Struct("<BQHIQQ").pack
+        parts = []
+        offsets = np.empty(len(payloads), dtype=np.uint64)
+        pos = 0
+        for i, (lt, seq, data) in enumerate(
+            zip(log_times.tolist(), list(sequences), payloads, strict=True)
+        ):
+            offsets[i] = pos
+            parts.append(
+                pack(S.MESSAGE_OPCODE, 22 + len(data), channel_id, int(seq) & 0xFFFFFFFF, lt, lt)
+            )
+            parts.append(data)
+            pos += S.MESSAGE_HEADER_SIZE + len(data)
+        self._add_block(
+            channel_id, b"".join(parts), np.asarray(log_times, dtype=np.uint64), offsets
+        )
+
+    def maybe_flush(self) -> int:
+        return self.flush_chunk() if self._chunk_len >= self.chunk_size else 0
+
+    def flush_chunk(self) -> int:
+        """Close the open chunk: compress, write it and its MessageIndex records, flush the
+        file object. Returns the number of messages written (0 if the chunk was empty)."""
+        count = self.pending_messages
+        if count == 0:
+            return 0
+        data = b"".join(self._parts)
+        compressed = self._compress(data)
+        name = self.compression.encode()
+        head = struct.pack(
+            "<BQQQQI",
+            Opcode.CHUNK,
+            8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(compressed),
+            self._chunk_start,
+            self._chunk_end,
+            len(data),
+            zlib.crc32(data),
+        )
+        head += struct.pack("<I", len(name)) + name + struct.pack("<Q", len(compressed))
+        chunk_start = self.position
+        self._write(head)
+        self._write(compressed)
+        chunk_length = self.position - chunk_start
+        index_start = self.position
+        offsets: dict[int, int] = {}
+        blocks = []
+        pos = index_start
+        for cid in sorted(self._chunk_index):
+            entries = np.concatenate(self._chunk_index[cid])
+            body = entries.tobytes()
+            blocks.append(
+                struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 2 + 4 + len(body), cid, len(body)) + body
+            )
+            offsets[cid] = pos
+            pos += len(blocks[-1])
+        self._write(b"".join(blocks))
+        self._chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=self._chunk_start,
+                message_end_time=self._chunk_end,
+                chunk_start_offset=chunk_start,
+                chunk_length=chunk_length,
+                message_index_offsets=offsets,
+                message_index_length=self.position - index_start,
+                compression=self.compression,
+                compressed_size=len(compressed),
+                uncompressed_size=len(data),
+            )
+        )
+        self._counts.update(self._chunk_counts)
+        self._t_min = (
+            self._chunk_start if self._t_min is None else min(self._t_min, self._chunk_start)
+        )
+        self._t_max = max(self._t_max, self._chunk_end)
+        self._reset_chunk()
+        self._fh.flush()
+        return count
+
+    def flush_io(self) -> None:
+        self._fh.flush()
+
+    # -- end -------------------------------------------------------------------------------
+    def finish(self) -> None:
+        """Write the last chunk, DataEnd, summary, summary offsets, footer and magic; close."""
+        self.flush_chunk()
+        self._record(DataEnd(data_section_crc=self._crc))
+        summary_start = self.position
+        builder = RecordBuilder()
+        offsets: list[SummaryOffset] = []
+
+        def group(opcode: int, records: Iterable[McapRecord]) -> None:
+            start = builder.count
+            for rec in records:
+                rec.write(builder)
+            if builder.count > start:
+                offsets.append(
+                    SummaryOffset(
+                        group_opcode=opcode,
+                        group_start=summary_start + start,
+                        group_length=builder.count - start,
+                    )
+                )
+
+        stats = Statistics(
+            message_count=sum(self._counts.values()),
+            schema_count=len(self._schemas),
+            channel_count=len(self._channels),
+            attachment_count=len(self._attachment_indexes),
+            metadata_count=len(self._metadata_indexes),
+            chunk_count=len(self._chunk_indexes),
+            message_start_time=self._t_min or 0,
+            message_end_time=self._t_max,
+            channel_message_counts={c.id: self._counts[c.id] for c in self._channels},
+        )
+        group(Opcode.SCHEMA, self._schemas)
+        group(Opcode.CHANNEL, self._channels)
+        group(Opcode.STATISTICS, [stats])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, self._attachment_indexes)
+        group(Opcode.METADATA_INDEX, self._metadata_indexes)
+        summary_offset_start = summary_start + builder.count
+        for off in offsets:
+            off.write(builder)
+        summary = builder.end()
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(
+            struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc
+        )
+        self._write(summary)
+        self._record(
+            Footer(
+                summary_start=summary_start,
+                summary_offset_start=summary_offset_start,
+                summary_crc=crc,
+            )
+        )
+        self._write(MAGIC)
+        self._fh.close()
+        self.closed = True
+
+    def abort(self) -> None:
+        """Close the file without a summary (after a write error): what is there stays
+        readable up to the last complete chunk."""
+        self.closed = True
+        with contextlib.suppress(OSError):
+            self._fh.close()
+
+
+def _compressor(name: str):  # type: ignore[no-untyped-def]
+    if name == "zstd":
+        import zstandard
+
+        cctx = zstandard.ZstdCompressor(level=1)  # ~2x level 3's speed, same ratio here
+        return cctx.compress
+    if name == "lz4":
+        import lz4.frame
+
+        return lz4.frame.compress
+    return bytes
+
+
+# ------------------------------------------------------------------------------------------
+class MessageEncoder:
+    """Turns pipeline output into messages on the bench's topics of one :class:`McapFile`.
+
+    Owns the log_time policy: receive time in ns; a NaN/negative/absurd time gets a
+    monotonic substitute (the latest log_time so far, or the bench clock if later) and is
+    counted in ``substituted`` (reported in the ``summary`` metadata record).
+    """
+
+    def __init__(
+        self, mf: McapFile, base_id: int = DEFAULT_BASE, extra_topics: Sequence[S.TopicSpec] = ()
+    ) -> None:
+        self.mf = mf
+        self.base_id = base_id
+        self.cid: dict[str, int] = {}
+        for spec in (*S.TOPICS, *extra_topics):
+            sid = mf.add_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
+            self.cid[spec.topic] = mf.add_channel(
+                spec.topic, spec.message_encoding, sid, {"description": spec.description}
+            )
+        self.last_ns = 0
+        self.substituted = 0
+        self.frames = 0
+        self._seq: Counter[int] = Counter()
+
+    # -- time ------------------------------------------------------------------------------
+    def log_ns(self, t: np.ndarray, fallback_ns: int) -> np.ndarray:
+        t = np.asarray(t, dtype=np.float64)
+        ok = np.isfinite(t) & (t >= 0) & (t < _T_MAX_S)
+        ns = np.zeros(len(t), dtype=np.uint64)
+        ns[ok] = np.rint(t[ok] * 1e9).astype(np.uint64)
+        bad = len(t) - int(np.count_nonzero(ok))
+        if bad:
+            ns[~ok] = max(self.last_ns, fallback_ns)
+            self.substituted += bad
+        if len(ns):
+            self.last_ns = max(self.last_ns, int(ns.max()))
+        return ns
+
+    def _next_seq(self, cid: int, n: int) -> np.ndarray:
+        start = self._seq[cid]
+        self._seq[cid] += n
+        return np.arange(start, start + n, dtype=np.int64) & 0xFFFFFFFF
+
+    # -- frames ----------------------------------------------------------------------------
+    def frames_records(
+        self, frames: np.ndarray, outcome: np.ndarray | None, fallback_ns: int
+    ) -> np.ndarray:
+        n = len(frames)
+        rec = np.zeros(n, dtype=S.FRAME_RECORD_DTYPE)
+        if n == 0:
+            return rec
+        if outcome is None or len(outcome) != n:
+            outcome = decode_batch(frames, self.base_id).outcome
+        ids = frames["id"]
+        off = ids.astype(np.int64) - self.base_id
+        counted = ((off >= 0) & (off <= 3)) | (ids == SPEED_REF_ID)
+        ns = self.log_ns(frames["t"], fallback_ns)
+        rec["opcode"] = S.MESSAGE_OPCODE
+        rec["length"] = S.FRAME_RECORD_LENGTH
+        rec["channel_id"] = self.cid[S.FRAME_TOPIC]
+        rec["sequence"] = np.where(counted, frames["data"][:, 0], 0)
+        rec["log_time"] = ns
+        rec["publish_time"] = ns
+        p = rec["payload"]
+        for name, value in S.FRAME_PB_CONST.items():
+            p[name] = value
+        p["t"] = frames["t"]
+        p["id"] = ids
+        p["dlc"] = frames["dlc"]
+        p["flags"] = frames["flags"]
+        p["outcome"] = np.asarray(outcome, dtype=np.uint8) & 0x7F
+        p["uart"] = (frames["flags"] & FLAG_UART) != 0
+        p["data"] = frames["data"]
+        return rec
+
+    def write_frames(
+        self, frames: np.ndarray, outcome: np.ndarray | None, fallback_ns: int
+    ) -> None:
+        if len(frames):
+            self.mf.add_fixed_records(
+                self.cid[S.FRAME_TOPIC], self.frames_records(frames, outcome, fallback_ns)
+            )
+            self.frames += len(frames)
+
+    # -- JSON topics -----------------------------------------------------------------------
+    def _json(
+        self,
+        topic: str,
+        t: np.ndarray,
+        payloads: list[bytes],
+        fallback_ns: int,
+        seq: np.ndarray | None = None,
+    ) -> None:
+        if not payloads:
+            return
+        cid = self.cid[topic]
+        ns = self.log_ns(t, fallback_ns)
+        self.mf.add_messages(
+            cid, ns, payloads, self._next_seq(cid, len(payloads)) if seq is None else seq
+        )
+
+    def write_link_errors(self, errors: Sequence[LinkError], fallback_ns: int) -> None:
+        if not errors:
+            return
+        payloads = [
+            _obj(
+                ("t", S.json_text(float(e.t))),
+                ("outcome", str(int(e.outcome))),
+                ("outcome_name", json.dumps(S.outcome_name(int(e.outcome)))),
+                ("raw", json.dumps(base64.b64encode(bytes(e.raw)).decode())),
+                ("length", str(len(e.raw))),
+                ("detail", json.dumps(e.detail)),
+            )
+            for e in errors
+        ]
+        t = np.array([e.t for e in errors], dtype=np.float64)
+        self._json(S.LINK_ERROR_TOPIC, t, payloads, fallback_ns)
+
+    def write_notices(self, notices: Sequence[Any], fallback_ns: int) -> None:
+        if not notices:
+            return
+        payloads = [
+            _obj(
+                ("t", S.json_text(float(n.t))),
+                ("kind", json.dumps(n.kind)),
+                ("detail", json.dumps(n.detail)),
+            )
+            for n in notices
+        ]
+        t = np.array([n.t for n in notices], dtype=np.float64)
+        self._json(S.NOTICE_TOPIC, t, payloads, fallback_ns)
+
+    def write_samples(self, samples: np.ndarray, fallback_ns: int) -> None:
+        if len(samples):
+            payloads = S.encode_rows(samples, S.SAMPLE_COLUMNS)
+            self._json(
+                S.SAMPLE_TOPIC, samples["t"], payloads, fallback_ns, samples["n"] & 0xFFFFFFFF
+            )
+
+    def write_results(self, results: np.ndarray, fallback_ns: int) -> None:
+        if len(results):
+            payloads = S.encode_rows(results, S.RESULT_COLUMNS)
+            self._json(
+                S.RESULT_TOPIC, results["t"], payloads, fallback_ns, results["n"] & 0xFFFFFFFF
+            )
+
+    def write_status(self, status: np.ndarray, fallback_ns: int) -> None:
+        if len(status):
+            extra = [
+                ("state_name", [json.dumps(S.state_name(s)) for s in status["state"].tolist()]),
+                (
+                    "supply_v",
+                    S.tokens(S.Column("supply_v", "supply", None, "float"), _supply_v(status)),
+                ),
+            ]
+            payloads = S.encode_rows(status, S.STATUS_COLUMNS, extra)
+            self._json(
+                S.STATUS_TOPIC,
+                status["t"],
+                payloads,
+                fallback_ns,
+                status["counter"].astype(np.int64),
+            )
+
+    def write_speed(self, speed: np.ndarray, fallback_ns: int) -> None:
+        if len(speed):
+            mps = np.zeros(len(speed), dtype=[("speed_mps", "<f8")])
+            mps["speed_mps"] = speed["speed"] / 1000.0
+            extra = [
+                ("speed_mps", S.tokens(S.Column("speed_mps", "speed_mps", None, "float"), mps))
+            ]
+            payloads = S.encode_rows(speed, S.SPEED_COLUMNS, extra)
+            self._json(
+                S.SPEED_TOPIC, speed["t"], payloads, fallback_ns, speed["counter"].astype(np.int64)
+            )
+
+    def write_events(
+        self, events: np.ndarray, fallback_ns: int, name: str = "bench", text: str | None = None
+    ) -> None:
+        if len(events) == 0:
+            return
+        ns = self.log_ns(events["t"], fallback_ns)
+        payloads = []
+        for ev, lt in zip(events, ns.tolist(), strict=True):
+            kind = int(ev["kind"])
+            try:
+                message = describe(ev)
+                kind_name = EventKind(kind).name
+                level = S.LOG_LEVELS.get(severity(kind), 4)
+            except ValueError:
+                message, kind_name, level = f"EVENT {kind}", str(kind), 4
+            if text is not None:
+                message = f"{message}: {text}"
+            fields = [
+                ("timestamp", f'{{"sec":{lt // 1_000_000_000},"nsec":{lt % 1_000_000_000}}}'),
+                ("level", str(level)),
+                ("message", json.dumps(message, ensure_ascii=False)),
+                ("name", json.dumps(name)),
+                ("file", '""'),
+                ("line", "0"),
+                ("t", S.json_text(float(ev["t"]))),
+                ("kind", str(kind)),
+                ("kind_name", json.dumps(kind_name)),
+                ("channel", str(int(ev["channel"]))),
+                ("n", str(int(ev["n"]))),
+                ("value", str(int(ev["value"]))),
+            ]
+            if text is not None:
+                fields.append(("text", json.dumps(text, ensure_ascii=False)))
+            payloads.append(_obj(*fields))
+        cid = self.cid[S.EVENT_TOPIC]
+        self.mf.add_messages(cid, ns, payloads, self._next_seq(cid, len(payloads)))
+
+    def write_health(self, stats: Stats, t: float, dropped: int, fallback_ns: int) -> None:
+        d: dict[str, Any] = {"t": t}
+        for name in S.HEALTH_TOTAL_FIELDS:
+            d[name] = dropped if name == "dropped_frames" else int(getattr(stats, name))
+        d["valid_fraction"] = stats.valid / stats.samples if stats.samples else 0.0
+        d["channels"] = [
+            {
+                "channel": k + 1,
+                "rate_hz": c.rate_hz(),
+                **{f: int(getattr(c, f)) for f in S.HEALTH_CHANNEL_FIELDS},
+            }
+            for k, c in enumerate(stats.channels)
+        ]
+        payload = json.dumps(d, separators=(",", ":")).replace("NaN", "null").encode()
+        self._json(S.HEALTH_TOPIC, np.array([t]), [payload], fallback_ns)
+
+    def write_truth(
+        self, rows: np.ndarray, columns: Sequence[S.Column], t: np.ndarray, fallback_ns: int
+    ) -> None:
+        if len(rows):
+            self._json(S.TRUTH_TOPIC, t, S.encode_rows(rows, columns), fallback_ns)
+
+
+def _obj(*fields: tuple[str, str]) -> bytes:
+    """A JSON object from (name, already encoded JSON token) pairs."""
+    return ("{" + ",".join(f'"{k}":{v}' for k, v in fields) + "}").encode()
+
+
+def _supply_v(status: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(status), dtype=[("supply", "<f8")])
+    out["supply"] = status["supply"] * 0.1
+    return out
+
+
+def _config_metadata(config: Config) -> dict[str, str]:
+    """The config as loaded: its TOML text (what replay reads back) plus flat keys to browse."""
+    meta = {"source": config.source, "toml": config.to_toml(), "base_id": f"0x{config.base_id:X}"}
+    meta["sample_rate_hz"] = str(config.sample_rate_hz)
+    for k, ch in enumerate(config.channels, start=1):
+        meta[f"ch{k}.angle_deg"] = repr(ch.angle_deg)
+        meta[f"ch{k}.scale"] = repr(ch.scale)
+        meta[f"ch{k}.offset"] = repr(ch.offset)
+    meta["g"] = repr(config.g)
+    meta["tolerance_permil"] = repr(config.tolerance_permil)
+    return meta
+
+
+def _run_metadata(extra: Mapping[str, str] | None) -> dict[str, str]:
+    meta = {
+        "format": "acb3-bench-mcap",
+        "format_version": S.FORMAT_VERSION,
+        "bench_version": __version__,
+        "created_utc": _utc_now(),
+        "writer": LIBRARY,
+        "python": platform.python_version(),
+        "host": platform.node(),
+        "command": " ".join(sys.argv),
+    }
+    meta.update({str(k): str(v) for k, v in (extra or {}).items()})
+    return meta
+
+
+# ------------------------------------------------------------------------------------------
+_STOP = object()
+
+
+class McapSink:
+    """The MCAP sink of a live run (implements bench.sinks.Sink).
+
+    ``write`` only enqueues (bounded queue; a full queue drops the step and counts its
+    frames in ``dropped``, it never blocks acquisition). A writer thread encodes, closes a
+    chunk at least every ``flush_interval_s`` and, on :meth:`close`, drains the queue and
+    writes the summary. A write error (disk full, unwritable path) never reaches the
+    caller: it is kept in ``error``, logged loudly, and everything after it is counted in
+    ``frames_lost``. Counters: ``frames_logged`` (frames in flushed chunks),
+    ``bytes_written``, ``dropped``, ``frames_lost``, ``errors``.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        config: Config,
+        metadata: Mapping[str, str] | None = None,
+        attachments: Sequence[tuple[str, bytes]] = (),
+        *,
+        queue_size: int = 10_000,
+        flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        compression: str = "zstd",
+        health_interval_s: float = 1.0,
+    ) -> None:
+        self.path = Path(path)
+        self.config = config
+        self.flush_interval_s = flush_interval_s
+        self.health_interval_s = health_interval_s
+        self.error: str | None = None
+        self.errors = 0
+        self.dropped = 0
+        self.dropped_steps = 0
+        self.frames_lost = 0
+        self.frames_logged = 0
+        self.bytes_written = 0
+        self._frames_pending = 0
+        self._dropped_reported = 0
+        self._closed = False
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        self._stats = Stats()
+        self._next_health: float | None = None
+        self._last_t = math.nan
+        self._chunk_opened: float | None = None
+        self._file: McapFile | None = None
+        self._enc: MessageEncoder | None = None
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._file = McapFile(self.path, chunk_size=chunk_size, compression=compression)
+            self._file.add_metadata("run", _run_metadata(metadata))
+            self._file.add_metadata("config", _config_metadata(config))
+            now = time.time_ns()
+            for name, data in attachments:
+                self._file.add_attachment(name, data, log_time=now)
+            self._enc = MessageEncoder(self._file, config.base_id)
+            self._file.flush_io()
+            self.bytes_written = self._file.position
+        except OSError as exc:
+            self._fail(exc)
+        self._thread = threading.Thread(
+            target=self._run, name=f"mcap-writer:{self.path.name}", daemon=True
+        )
+        self._thread.start()
+        atexit.register(self.close)
+
+    # -- caller side (acquisition thread) --------------------------------------------------
+    def write(self, step: StepOutput) -> None:
+        try:
+            self._queue.put_nowait((step, time.time_ns()))
+        except queue.Full:
+            self.dropped += len(step.frames)
+            self.dropped_steps += 1
+            if self.dropped_steps == 1:
+                log.warning("MCAP log %s: writer queue full, dropping frames (counted)", self.path)
+
+    def mark(self, t: float, text: str) -> None:
+        try:
+            self._queue.put_nowait(("mark", float(t), str(text), time.time_ns()))
+        except queue.Full:
+            self.dropped_steps += 1
+            log.warning("MCAP log %s: queue full, operator mark %r not logged", self.path, text)
+
+    def close(self) -> None:
+        """Drain the queue, write the summary and close the file (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(Exception):
+            atexit.unregister(self.close)
+        while self._thread.is_alive():
+            try:
+                self._queue.put(_STOP, timeout=0.2)
+                break
+            except queue.Full:
+                continue
+        self._thread.join()
+
+    def __enter__(self) -> McapSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def queue_depth(self) -> int:
+        return self._queue.qsize()
+
+    def status(self) -> dict[str, Any]:
+        """The recording's figures for a status line or the TUI."""
+        return {
+            "path": str(self.path),
+            "frames": self.frames_logged,
+            "bytes": self.bytes_written,
+            "dropped": self.dropped,
+            "lost": self.frames_lost,
+            "queue": self.queue_depth,
+            "error": self.error,
+            "closed": self._closed,
+        }
+
+    # -- writer thread ---------------------------------------------------------------------
+    def _fail(self, exc: BaseException) -> None:
+        self.errors += 1
+        if self.error is None:
+            reason = (
+                exc.strerror
+                if isinstance(exc, OSError) and exc.strerror
+                else str(exc) or type(exc).__name__
+            )
+            self.error = f"{self.path}: {reason}"
+            log.error(
+                "MCAP log %s FAILED: %s -- nothing more is logged to it (frames counted as lost)",
+                self.path,
+                reason,
+            )
+        if self._file is not None:
+            self.frames_lost += self._frames_pending
+            self._frames_pending = 0
+            self._file.abort()
+            self._file = None
+            self._enc = None
+
+    def _run(self) -> None:
+        while True:
+            timeout = None
+            if self._chunk_opened is not None:
+                timeout = max(0.0, self._chunk_opened + self.flush_interval_s - time.monotonic())
+            try:
+                item = self._queue.get(timeout=timeout)
+            except queue.Empty:
+                item = None
+            if item is _STOP:
+                break
+            if item is not None:
+                try:
+                    self._handle(item)
+                except Exception as exc:
+                    self._fail(exc)
+            if (
+                self._chunk_opened is not None
+                and time.monotonic() - self._chunk_opened >= self.flush_interval_s
+            ):
+                self._flush()
+        self._finish()
+
+    def _handle(self, item: Any) -> None:
+        if item[0] == "mark":
+            _, t, text, wall = item
+            if self._enc is None:
+                return
+            self._enc.write_events(make_events(EventKind.MARK, t), wall, name="operator", text=text)
+            self._opened()
+            return
+        step, wall = item
+        step: StepOutput  # type: ignore[no-redef]
+        n = len(step.frames)
+        self._account(step)
+        if self._enc is None:
+            self.frames_lost += n
+            return
+        enc = self._enc
+        if self.dropped > self._dropped_reported:
+            delta = self.dropped - self._dropped_reported
+            self._dropped_reported = self.dropped
+            t = float(step.frames["t"][0]) if n else self._last_t
+            enc.write_events(make_events(EventKind.DROPPED, t, value=delta), wall, name="logger")
+        enc.write_frames(step.frames, step.outcome, wall)
+        self._frames_pending += n
+        if step.batch is not None:
+            enc.write_link_errors(step.batch.link_errors, wall)
+            enc.write_notices(step.batch.notices, wall)
+        enc.write_samples(step.samples, wall)
+        enc.write_results(step.results, wall)
+        enc.write_status(step.status, wall)
+        enc.write_speed(step.speed, wall)
+        enc.write_events(step.events, wall)
+        self._health(step, wall)
+        if self._file is not None and self._file.pending_messages:
+            self._opened()
+            if self._file.maybe_flush():
+                self._flushed()
+
+    def _opened(self) -> None:
+        if self._chunk_opened is None:
+            self._chunk_opened = time.monotonic()
+
+    def _flushed(self) -> None:
+        self._chunk_opened = None
+        self.frames_logged += self._frames_pending
+        self._frames_pending = 0
+        if self._file is not None:
+            self.bytes_written = self._file.position
+
+    def _flush(self) -> None:
+        if self._file is None:
+            self._chunk_opened = None
+            return
+        try:
+            self._file.flush_chunk()
+            self._flushed()
+        except Exception as exc:
+            self._fail(exc)
+
+    def _account(self, step: StepOutput) -> None:
+        st = self._stats
+        frames = step.frames
+        st.count_frames(frames["id"])
+        st.count_events(step.events)
+        st.count_results(step.results)
+        st.status_frames += len(step.status)
+        st.speed_frames += len(step.speed)
+        if len(frames) and len(step.outcome) == len(frames):
+            ids = frames["id"].astype(np.int64)
+            ch = ids - self.config.base_id
+            good = (step.outcome == Outcome.OK) & (ch >= 1) & (ch <= 3) & (ids != SPEED_REF_ID)
+            for k in range(3):
+                sel = good & (ch == k + 1)
+                count = int(np.count_nonzero(sel))
+                if count:
+                    cs = st.channels[k]
+                    times = frames["t"][sel]
+                    if cs.frames == 0:
+                        cs.first_t = float(times[0])
+                    cs.last_t = float(times[-1])
+                    cs.frames += count
+        finite = frames["t"][np.isfinite(frames["t"])] if len(frames) else frames["t"]
+        if len(finite):
+            self._last_t = float(finite[-1])
+
+    def _health(self, step: StepOutput, wall: int) -> None:
+        if self._enc is None or not len(step.frames):
+            return
+        clock = self._last_t if math.isfinite(self._last_t) else wall / 1e9
+        if self._next_health is None:
+            self._next_health = clock + self.health_interval_s
+        elif clock >= self._next_health:
+            self._enc.write_health(self._stats, clock, self.dropped, wall)
+            self._next_health = clock + self.health_interval_s
+
+    def _finish(self) -> None:
+        if self._file is None or self._enc is None:
+            return
+        try:
+            wall = time.time_ns()
+            if self._stats.frames:
+                clock = self._last_t if math.isfinite(self._last_t) else wall / 1e9
+                self._enc.write_health(self._stats, clock, self.dropped, wall)
+            self._file.flush_chunk()
+            self._flushed()
+            self._file.add_metadata("summary", self.summary())
+            self._file.finish()
+            self.bytes_written = self._file.position
+        except Exception as exc:
+            self._fail(exc)
+
+    def summary(self) -> dict[str, str]:
+        """End-of-run counters, written as the ``summary`` metadata record."""
+        enc = self._enc
+        return {
+            "stopped_utc": _utc_now(),
+            "frames": str(self._stats.frames),
+            "frames_logged": str(self.frames_logged + self._frames_pending),
+            "frames_by_id": json.dumps(
+                {f"0x{k:03X}": v for k, v in sorted(self._stats.frames_by_id.items())}
+            ),
+            "dropped_frames": str(self.dropped),
+            "frames_lost": str(self.frames_lost),
+            "log_errors": str(self.errors),
+            "log_time_substituted": str(enc.substituted if enc else 0),
+            "stats": json.dumps(self._stats.as_dict()),
+        }
+
+
+# ------------------------------------------------------------------------------------------
+def _as_frames(frames: Any) -> np.ndarray:
+    if isinstance(frames, np.ndarray) and frames.dtype == FRAME_DTYPE:
+        return frames
+    if (
+        isinstance(frames, np.ndarray)
+        and frames.dtype.names
+        and set(FRAME_DTYPE.names or ()) <= set(frames.dtype.names)
+    ):
+        out = np.zeros(len(frames), dtype=FRAME_DTYPE)
+        for name in FRAME_DTYPE.names or ():
+            out[name] = frames[name]
+        return out
+    return frames_from_raw(frames)
+
+
+def _as_table(truth: Any) -> np.ndarray | None:
+    """A structured array from a truth table (structured array, dict of columns, or an
+    object with a ``to_records``/``as_array`` method); None if it is none of these."""
+    if truth is None:
+        return None
+    if isinstance(truth, np.ndarray) and truth.dtype.names:
+        return truth
+    for attr in ("as_array", "to_array", "to_records"):
+        fn = getattr(truth, attr, None)
+        if callable(fn):
+            arr = np.asarray(fn())
+            return arr if arr.dtype.names else None
+    cols = truth if isinstance(truth, Mapping) else getattr(truth, "__dict__", None)
+    if not isinstance(cols, Mapping):
+        return None
+    arrays = {k: np.asarray(v) for k, v in cols.items() if isinstance(v, np.ndarray | list | tuple)}
+    arrays = {k: v for k, v in arrays.items() if v.ndim >= 1 and v.dtype.kind in "biuf"}
+    if not arrays:
+        return None
+    n = len(next(iter(arrays.values())))
+    arrays = {k: v for k, v in arrays.items() if len(v) == n}
+    out = np.zeros(n, dtype=[(k, v.dtype, v.shape[1:]) for k, v in arrays.items()])
+    for k, v in arrays.items():
+        out[k] = v
+    return out
+
+
+def _time_column(rows: np.ndarray) -> np.ndarray:
+    for name in ("t", "time", "time_s"):
+        if rows.dtype.names and name in rows.dtype.names and rows.dtype[name].shape == ():
+            return rows[name].astype(np.float64)
+    return np.full(len(rows), np.nan)
+
+
+def write_emulation(
+    path: str | Path,
+    emulation: Any,
+    scenario_path: str | Path | None = None,
+    *,
+    config: Config | None = None,
+    metadata: Mapping[str, str] | None = None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+) -> dict[str, int]:
+    """Write an emulator run (``emulation.frames`` and, if present, ``.link_errors`` and
+    ``.truth``) straight to MCAP, with the scenario file attached. Synchronous: this is a
+    batch job, not an acquisition path. Returns counts (frames, link_errors, truth, bytes).
+    """
+    frames = _as_frames(emulation.frames)
+    link_errors = sorted(
+        getattr(emulation, "link_errors", None) or [], key=lambda e: (math.isnan(e.t), e.t)
+    )
+    truth = _as_table(getattr(emulation, "truth", None))
+    truth_cols = S.columns_for(truth.dtype) if truth is not None else []
+    base_id = (
+        config.base_id if config is not None else int(getattr(emulation, "base_id", DEFAULT_BASE))
+    )
+    wall = time.time_ns()
+    mf = McapFile(path, chunk_size=chunk_size)
+    try:
+        run = {"source": "emulator", "mode": "emulate"}
+        scen_bytes = b""
+        if scenario_path is not None:
+            sp = Path(scenario_path)
+            scen_bytes = sp.read_bytes()
+            run["scenario"] = sp.name
+        scenario = getattr(emulation, "scenario", None)
+        seed = getattr(emulation, "seed", getattr(scenario, "seed", None))
+        if seed is not None:
+            run["seed"] = str(seed)
+        if getattr(scenario, "description", ""):
+            run["scenario_description"] = str(scenario.description)
+        run.update(metadata or {})
+        mf.add_metadata("run", _run_metadata(run))
+        if config is not None:
+            mf.add_metadata("config", _config_metadata(config))
+        if scenario_path is not None:
+            mf.add_metadata(
+                "scenario",
+                {"path": str(scenario_path), "toml": scen_bytes.decode("utf-8", "replace")},
+            )
+            mf.add_attachment(Path(scenario_path).name, scen_bytes, log_time=wall)
+        enc = MessageEncoder(mf, base_id, [S.truth_topic(truth_cols)] if truth is not None else [])
+        outcome = decode_batch(frames, base_id).outcome
+        le_t = np.array([e.t for e in link_errors], dtype=np.float64)
+        le_done = 0
+        step = 65536
+        for start in range(0, len(frames), step):
+            part = frames[start : start + step]
+            enc.write_frames(part, outcome[start : start + step], wall)
+            last = start + step >= len(frames)
+            upto = (
+                len(link_errors)
+                if last
+                else int(np.searchsorted(le_t, part["t"][-1], side="right"))
+            )
+            if upto > le_done:
+                enc.write_link_errors(link_errors[le_done:upto], wall)
+                le_done = upto
+            mf.maybe_flush()
+        if le_done < len(link_errors):
+            enc.write_link_errors(link_errors[le_done:], wall)
+        if truth is not None:
+            t = _time_column(truth)
+            for start in range(0, len(truth), step):
+                enc.write_truth(
+                    truth[start : start + step], truth_cols, t[start : start + step], wall
+                )
+                mf.maybe_flush()
+        mf.flush_chunk()
+        ids, counts = np.unique(frames["id"], return_counts=True)
+        by_id = dict(zip(ids.tolist(), counts.tolist(), strict=True))
+        mf.add_metadata(
+            "summary",
+            {
+                "stopped_utc": _utc_now(),
+                "frames": str(len(frames)),
+                "frames_logged": str(len(frames)),
+                "frames_by_id": json.dumps({f"0x{k:03X}": v for k, v in sorted(by_id.items())}),
+                "link_errors": str(len(link_errors)),
+                "truth_rows": str(0 if truth is None else len(truth)),
+                "log_time_substituted": str(enc.substituted),
+            },
+        )
+        mf.finish()
+    except BaseException:
+        mf.abort()
+        raise
+    return {
+        "frames": len(frames),
+        "link_errors": len(link_errors),
+        "truth": 0 if truth is None else len(truth),
+        "bytes": mf.position,
+    }
+
+
+__all__ = ["McapFile", "McapSink", "MessageEncoder", "write_emulation"]

@@ -1,0 +1,383 @@
+"""The bench TUI: a thin App that lays out the panels and maps keys to session actions.
+
+The App never blocks on acquisition: a timer (4 Hz) starts a worker thread that copies a
+:class:`~bench.live.Snapshot` from the runner and prepares the plot series, then posts them
+back; at most one snapshot is in flight, so a slow terminal only lowers the display rate and
+never backs up the receive path (the runner's bounded queue and drop counters are shown).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Iterable
+from typing import ClassVar
+
+import numpy as np
+from rich.text import Text
+from textual import work
+from textual.app import App, ComposeResult, SystemCommand
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical
+from textual.screen import Screen
+from textual.widgets import Footer, Static
+
+from bench.errors import BenchError
+from bench.live import HISTORY, Snapshot
+from bench.tui.messages import SessionStopped, SnapshotReady
+from bench.tui.panels import duration_text
+from bench.tui.panels.board import BoardPanel
+from bench.tui.panels.channels import ChannelsPanel, RateMeter
+from bench.tui.panels.events import EventsPanel
+from bench.tui.panels.pairs import PairsPanel
+from bench.tui.panels.plot import WINDOWS_S, GradientPlot, Plot, prepare_series, render_plot
+from bench.tui.panels.recording import RecordingPanel
+from bench.tui.replay_source import ReplayStatus, speed_label
+from bench.tui.session import Session
+
+TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
+"""What + and - step through (per mille): fine where the vote is touchy, coarse above."""
+
+REPLAY_ACTIONS = {"play_pause", "speed", "step", "next_failure"}
+
+
+def next_tolerance(current: float, direction: int) -> float:
+    if direction > 0:
+        return next((s for s in TOLERANCE_STEPS if s > current + 1e-9), TOLERANCE_STEPS[-1])
+    return next((s for s in reversed(TOLERANCE_STEPS) if s < current - 1e-9), TOLERANCE_STEPS[0])
+
+
+class BenchApp(App[int]):
+    """Live or replay view of one Session."""
+
+    CSS_PATH = "bench.tcss"
+    TITLE = "ACB-3 bench"
+    ENABLE_COMMAND_PALETTE = True
+
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("q", "quit", "Quit"),
+        Binding("ctrl+c", "quit", "Quit", show=False, priority=True),
+        Binding("p", "pause_display", "Pause display"),
+        Binding("r", "record", "Rec on/off"),
+        Binding("m", "mark", "Mark"),
+        Binding("plus,equals_sign", "tolerance(1)", "Tol+", key_display="+"),
+        Binding("minus", "tolerance(-1)", "Tol-", key_display="-"),
+        Binding("w", "window", "Window"),
+        Binding("space", "play_pause", "Play/pause"),
+        Binding("s", "speed", "Speed"),
+        Binding("n", "step", "Step"),
+        Binding("j", "next_failure", "Next fail"),
+    ]
+
+    def __init__(self, session: Session, *, poll_hz: float = 4.0, window_s: float = 10.0) -> None:
+        super().__init__()
+        self.session = session
+        self.poll_hz = poll_hz
+        self.window_s = window_s
+        self.display_paused = False
+        self.cursor_n: int | None = None  # replay: the sample shown instead of the newest
+        self.last_snapshot: Snapshot | None = None
+        self.snapshots_applied = 0  # shown on screen
+        self.snapshots_received = 0  # taken from the runner (also while the display is paused)
+        self.quitting = False
+        self._polling = False
+        self._rates = RateMeter()
+        self._plot = Plot()
+        self._plot_lock = threading.Lock()
+        self._failure_seen: object = None
+        self.stop_error: str | None = None
+
+    # -- layout ---------------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static(id="status-bar")
+        with Horizontal(id="top"):
+            yield PairsPanel(id="pairs", classes="panel")
+            yield ChannelsPanel(id="channels", classes="panel")
+        with Horizontal(id="bottom"):
+            with Vertical(id="left"):
+                yield GradientPlot(id="plot", classes="panel")
+                yield EventsPanel(id="events", classes="panel")
+            with Vertical(id="right"):
+                yield BoardPanel(id="board", classes="panel")
+                yield RecordingPanel(id="recording", classes="panel")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.query_one("#plot").border_title = self._plot_title()
+        self._update_status_bar()
+        if self.poll_hz > 0:
+            self.set_interval(1.0 / self.poll_hz, self.poll)
+            self.poll()
+
+    # -- snapshots ------------------------------------------------------------------------
+    def poll(self) -> None:
+        """Timer tick: start a snapshot worker unless one is still in flight."""
+        if self._polling or self.quitting:
+            return
+        self._polling = True
+        size = self.query_one(GradientPlot).content_size
+        self._take_snapshot(size.width, size.height)
+
+    @work(thread=True, exclusive=False, group="poll", exit_on_error=False)
+    def _take_snapshot(self, width: int, height: int) -> None:
+        try:
+            snap = self.session.snapshot(last=self._rows_needed())
+            plot, rates = self._prepare(snap, width, height)
+        except Exception as exc:  # shown, never fatal: the runner keeps logging regardless
+            self._polling = False
+            self.call_from_thread(self.notify, f"snapshot failed: {exc!r}", severity="error")
+            return
+        self.post_message(SnapshotReady(snap, plot, rates))
+
+    def _prepare(self, snap: Snapshot, width: int, height: int) -> tuple[Text, list[float]]:
+        """The heavy part of a display update: thin the series and draw the plot."""
+        series = prepare_series(snap.results, self.window_s, max_points=max(50, 2 * width))
+        with self._plot_lock:
+            plot = render_plot(self._plot, series, width, height)
+        return plot, self._rates.update(snap.stats, snap.wall)
+
+    def _rows_needed(self) -> int:
+        rate = self.session.runner.config.sample_rate_hz if self.session.runner else 1000
+        last = self.last_snapshot
+        if last is not None and last.board is not None and int(last.board["sample_rate"]) > 0:
+            rate = int(last.board["sample_rate"])
+        return int(min(HISTORY, self.window_s * rate * 1.1 + 100))
+
+    def on_snapshot_ready(self, message: SnapshotReady) -> None:
+        self._polling = False
+        self.snapshots_received += 1
+        self.last_snapshot = message.snapshot
+        self._follow_replay(message.snapshot)
+        if not self.display_paused:
+            self._apply(message.snapshot, message.plot, message.rates)
+        self._update_status_bar()
+
+    def apply_snapshot(self, snap: Snapshot) -> None:
+        """Show a snapshot now, on the UI thread (tests, and fixed-snapshot sessions)."""
+        self.last_snapshot = snap
+        size = self.query_one(GradientPlot).content_size
+        plot, rates = self._prepare(snap, size.width, size.height)
+        self._apply(snap, plot, rates)
+        self._update_status_bar()
+
+    def _apply(self, snap: Snapshot, plot: Text, rates: list[float]) -> None:
+        if not self.is_running or (self.quitting and not snap.running):
+            return
+        row = self._row(snap)
+        self.query_one(PairsPanel).show(
+            row, snap.tolerance_permil, cursor=self.cursor_n is not None
+        )
+        self.query_one(ChannelsPanel).show(row, snap.stats, rates)
+        self.query_one(GradientPlot).show(plot)
+        self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
+        self.query_one(RecordingPanel).show(snap.recording, snap.extra.get("last_recording"))
+        self.query_one(EventsPanel).show(snap.events)
+        self.snapshots_applied += 1
+
+    def _row(self, snap: Snapshot) -> np.void | None:
+        res = snap.results
+        if len(res) == 0:
+            return None
+        if self.cursor_n is not None:
+            hit = np.flatnonzero(res["n"] == self.cursor_n)
+            if len(hit):
+                return res[int(hit[0])]
+        return res[-1]
+
+    def _follow_replay(self, snap: Snapshot) -> None:
+        rs: ReplayStatus | None = snap.extra.get("replay")
+        if rs is None or rs.failure is None or rs.failure is self._failure_seen:
+            return
+        self._failure_seen = rs.failure
+        self.cursor_n = rs.failure.n
+        self.notify(f"stopped at {rs.failure.text}", title="vote failure")
+
+    # -- status bar -----------------------------------------------------------------------
+    def _update_status_bar(self) -> None:
+        s = self.last_snapshot
+        text = Text()
+        text.append(" ACB-3 bench ", style="bold reverse")
+        rs: ReplayStatus | None = s.extra.get("replay") if s is not None else None
+        if self.session.mode == "replay":
+            text.append(" REPLAY ", style="bold black on cyan")
+            if rs is not None:
+                if rs.seeking:
+                    state = "⏩ seeking vote failure"
+                elif rs.finished and rs.consumed >= rs.emitted:
+                    state = "■ end of log"
+                else:
+                    state = "⏸ paused" if rs.paused else "▶ playing"
+                text.append(f" {state} {speed_label(rs.speed)}")
+                if math.isfinite(rs.fraction):
+                    text.append(f"  {100 * rs.fraction:.0f}%")
+                if math.isfinite(rs.log_t) and math.isfinite(rs.log_t0):
+                    text.append(f"  log {duration_text(rs.log_t - rs.log_t0)}")
+        else:
+            text.append(" LIVE ", style="bold black on green")
+        if s is not None:
+            text.append(f"  {s.source}")
+            if len(s.results):
+                text.append(f"  t {float(s.results['time_s'][-1]):.1f} s")
+            if s.extra.get("emulator_done"):
+                text.append("  scenario finished", style="yellow")
+            if not s.running:
+                text.append("  stopped", style="yellow")
+        if self.session.recorder.active:
+            text.append("  ● REC", style="bold red")
+        if self.display_paused:
+            text.append("  DISPLAY PAUSED (acquisition and log continue)", style="bold yellow")
+        if self.quitting:
+            text.append("  finishing the log…", style="bold yellow")
+        self.query_one("#status-bar", Static).update(text)
+
+    def _plot_title(self) -> str:
+        w = self.window_s
+        span = f"{w:.0f} s" if w < 120 else f"{w / 60:.0f} min"
+        return (
+            f"Gradient ‰ · last {span} · [white]final[/] [cyan]g12[/] [magenta]g23[/] "
+            "[yellow]g13[/] [green]ours[/]"
+        )
+
+    # -- actions --------------------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        if action in REPLAY_ACTIONS:
+            return self.session.replay is not None
+        if action in ("record", "mark", "tolerance") and self.session.runner is None:
+            return None
+        return True
+
+    def action_pause_display(self) -> None:
+        """Freeze the panels; acquisition, fusion and logging go on underneath."""
+        self.display_paused = not self.display_paused
+        self._update_status_bar()
+        if not self.display_paused and self.last_snapshot is not None:
+            self.poll()
+
+    def action_record(self) -> None:
+        rec = self.session.recorder
+        if rec.active:
+            sink = rec.detach()
+            self.notify(f"recording stopped: {getattr(sink, 'path', '')}")
+            self._finish_recording(sink)
+        else:
+            if not rec.can_start:
+                self.notify("this session cannot record", severity="warning")
+                return
+            try:
+                path = rec.start()
+            except (BenchError, OSError, RuntimeError) as exc:
+                self.notify(f"cannot record: {exc}", severity="error")
+                return
+            self.notify(f"recording to {path}")
+        self._update_status_bar()
+
+    @work(thread=True, group="recording", exit_on_error=False)
+    def _finish_recording(self, sink: object) -> None:
+        """Closing an MCAP file flushes and writes its summary: not on the UI thread."""
+        try:
+            self.session.recorder.finish(sink)
+        except Exception as exc:
+            self.call_from_thread(self.notify, f"closing the log failed: {exc!r}", severity="error")
+
+    def action_mark(self) -> None:
+        n = (self.session.runner.marks if self.session.runner else 0) + 1
+        self.session.mark(f"operator mark {n}")
+        self.notify(f"mark {n} recorded")
+
+    def action_tolerance(self, direction: int) -> None:
+        tol = next_tolerance(self.session.tolerance(), int(direction))
+        self.session.set_tolerance(tol)
+        self.notify(f"tolerance ±{tol:g} ‰")
+
+    def action_window(self) -> None:
+        i = WINDOWS_S.index(self.window_s) if self.window_s in WINDOWS_S else -1
+        self.window_s = WINDOWS_S[(i + 1) % len(WINDOWS_S)]
+        self.query_one("#plot").border_title = self._plot_title()
+
+    def action_play_pause(self) -> None:
+        if self.session.replay is None:
+            return
+        paused = self.session.replay.toggle()
+        if not paused:
+            self.cursor_n = None
+        self._update_status_bar()
+
+    def action_speed(self) -> None:
+        if self.session.replay is not None:
+            self.notify(f"replay speed {speed_label(self.session.replay.cycle_speed())}")
+
+    def action_step(self) -> None:
+        """One sample on: within what is already fused (exact), else one period of log."""
+        replay = self.session.replay
+        if replay is None:
+            return
+        snap = self.last_snapshot
+        if self.cursor_n is not None and snap is not None and len(snap.results):
+            later = snap.results["n"][snap.results["n"] > self.cursor_n]
+            if len(later):
+                self.cursor_n = int(later.min())
+                self._apply_last()
+                return
+            self.cursor_n = None
+        replay.step()
+
+    def _apply_last(self) -> None:
+        if self.last_snapshot is not None:
+            self.apply_snapshot(self.last_snapshot)
+
+    def action_next_failure(self) -> None:
+        if self.session.replay is not None:
+            self.cursor_n = None
+            self.session.replay.seek_failure()
+            self._update_status_bar()
+
+    async def action_quit(self) -> None:
+        """Stop acquisition and close the MCAP file (summary written) before leaving."""
+        if self.quitting:
+            return
+        self.quitting = True
+        self._update_status_bar()
+        self._stop_session()
+
+    @work(thread=True, group="stop", exit_on_error=False)
+    def _stop_session(self) -> None:
+        error: str | None = None
+        try:
+            self.session.stop()
+            if self.session.runner is not None:
+                error = self.session.runner.error
+        except Exception as exc:
+            error = repr(exc)
+        self.post_message(SessionStopped(error))
+
+    def on_session_stopped(self, message: SessionStopped) -> None:
+        self.stop_error = message.error
+        self.exit(1 if message.error else 0)
+
+    # -- command palette ------------------------------------------------------------------
+    def get_system_commands(self, screen: Screen) -> Iterable[SystemCommand]:
+        yield SystemCommand("Pause display", "Freeze the panels (p)", self.action_pause_display)
+        yield SystemCommand(
+            "Record on/off", "Start or stop an MCAP recording (r)", self.action_record
+        )
+        yield SystemCommand("Mark event", "Put an operator mark into the log (m)", self.action_mark)
+        yield SystemCommand(
+            "Tolerance up", "Widen the vote tolerance (+)", lambda: self.action_tolerance(1)
+        )
+        yield SystemCommand(
+            "Tolerance down", "Narrow the vote tolerance (-)", lambda: self.action_tolerance(-1)
+        )
+        yield SystemCommand(
+            "Plot window", "Cycle 10 s / 30 s / 1 min / 5 min (w)", self.action_window
+        )
+        if self.session.replay is not None:
+            yield SystemCommand("Play/pause replay", "(space)", self.action_play_pause)
+            yield SystemCommand("Replay speed", "Cycle 1x / 10x / max (s)", self.action_speed)
+            yield SystemCommand("Step", "One sample on (n)", self.action_step)
+            yield SystemCommand(
+                "Next vote failure", "Run to the next vote failure (j)", self.action_next_failure
+            )
+        yield SystemCommand("Quit", "Stop, finish the MCAP log and leave (q)", self.action_quit)
+        for cmd in super().get_system_commands(screen):
+            if cmd.title not in ("Quit",):
+                yield cmd

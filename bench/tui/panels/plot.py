@@ -1,0 +1,107 @@
+"""Gradient history: the final gradient, the three pair traces and our signed estimate.
+
+The series are cut to the selected window and thinned to about two points per column in
+the poller thread (:func:`prepare_series`), so the UI thread only draws a few hundred points.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from rich.text import Text
+from textual.widgets import Static
+from textual_plotext.plot import Plot
+
+WINDOWS_S = (10.0, 30.0, 60.0, 300.0)
+"""Selectable plot windows (the runner keeps 60000 results: 5 min at 200 Hz, 1 min at 1 kHz)."""
+
+TRACES = (
+    ("gradient", "final", "white"),
+    ("g12", "g12", "cyan"),
+    ("g23", "g23", "magenta"),
+    ("g13", "g13", "yellow"),
+    ("signed", "ours", "green"),
+)
+
+
+@dataclass
+class PlotSeries:
+    """x = seconds before the newest sample (<= 0); one y array per trace, NaN = gap."""
+
+    window_s: float
+    x: np.ndarray
+    y: dict[str, np.ndarray]
+    span_s: float  # how much history there actually is
+
+
+def prepare_series(results: np.ndarray, window_s: float, max_points: int = 400) -> PlotSeries:
+    """Cut the last ``window_s`` of results (board time) and thin to ``max_points``.
+
+    Thinning keeps, per bucket, the sample with the largest final gradient change, so a
+    one-sample dropout or spike still shows (plain striding would usually skip it)."""
+    if len(results) == 0:
+        return PlotSeries(window_s, np.zeros(0), {k: np.zeros(0) for k, _, _ in TRACES}, 0.0)
+    t = results["time_s"]
+    t_end = float(t[-1])
+    start = int(np.searchsorted(t, t_end - window_s, side="left"))
+    if start >= len(t) or t[start] > t_end:  # time went backwards (restart): use the tail
+        start = max(0, len(t) - 1)
+    sel = results[start:]
+    n = len(sel)
+    if n > max_points:
+        edges = np.linspace(0, n, max_points + 1).astype(np.int64)
+        g = sel["gradient"]
+        dev = np.abs(np.nan_to_num(g - np.nanmedian(g) if np.isfinite(g).any() else g, nan=1e9))
+        pick = np.array([a + int(np.argmax(dev[a:b])) for a, b in itertools.pairwise(edges)])
+        sel = sel[pick]
+    x = sel["time_s"] - t_end
+    y = {
+        "gradient": sel["gradient"].astype(np.float64),
+        "g12": sel["slopes"][:, 0].astype(np.float64),
+        "g23": sel["slopes"][:, 1].astype(np.float64),
+        "g13": sel["slopes"][:, 2].astype(np.float64),
+        "signed": sel["gradient_signed"].astype(np.float64),
+    }
+    return PlotSeries(window_s, x, y, t_end - float(t[start]))
+
+
+def render_plot(plot: Plot, series: PlotSeries | None, width: int, height: int) -> Text:
+    """Draw the series with plotext into a Text of ``width`` x ``height`` cells.
+
+    Runs in the poller thread (plotext needs ~100 ms for a few hundred points with lines, far
+    too long for the UI thread at 4 Hz); ``plot`` is only ever used by that one thread."""
+    plot.clear_data()
+    plot.clear_figure()
+    plot.theme("clear")
+    plot.plotsize(max(10, width), max(4, height))
+    plot._set_size(max(10, width), max(4, height))  # see textual-plotext issue #5
+    plot.xlabel("s")
+    window = series.window_s if series is not None else WINDOWS_S[0]
+    plot.xlim(-window, 0)
+    lo, hi = math.inf, -math.inf
+    if series is not None and len(series.x):
+        for key, _label, color in TRACES:
+            y = series.y[key]
+            ok = np.isfinite(y)
+            if not ok.any():
+                continue
+            xs, ys = series.x[ok], y[ok]
+            lo, hi = min(lo, float(ys.min())), max(hi, float(ys.max()))
+            plot.plot(xs.tolist(), ys.tolist(), color=color, marker="braille")
+    if math.isfinite(lo):
+        pad = max(0.5, 0.05 * (hi - lo))
+        plot.ylim(lo - pad, hi + pad)
+    else:
+        plot.ylim(-1, 1)
+    return Text.from_ansi(plot.build(), no_wrap=True)
+
+
+class GradientPlot(Static):
+    """Shows the plot text the poller drew."""
+
+    def show(self, text: Text | None) -> None:
+        if text is not None:
+            self.update(text)

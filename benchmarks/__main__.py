@@ -1,0 +1,175 @@
+"""``python -m benchmarks [--quick] [--json OUT] [--markdown OUT] [--only NAME ...]``
+
+Runs every measurement, each in a fresh Python process, prints the table (figure, anchor,
+ratio, target, PASS/MISS) with the machine it ran on, and writes it as JSON
+(default ``benchmarks/results.json``). The full run takes about 6 minutes on 2 cores;
+``--quick`` (smaller files, short live runs) about one minute and is for smoke-testing the
+harness, not for quoting.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import ROOT, Figure, fmt_value, machine_info
+from benchmarks._worker import MARKER
+
+DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
+
+# name, kwargs (full), kwargs (quick), timeout s (full)
+PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
+    ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 360),
+    ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
+    ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 330),
+    ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
+    ("latency", {"seconds": 30.0, "tui": True}, {"seconds": 8.0, "tui": True}, 120),
+]
+
+
+def run_worker(name: str, kwargs: dict[str, Any], timeout: float) -> list[Figure]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH", "")]))
+    cmd = [sys.executable, "-m", "benchmarks._worker", name, json.dumps(kwargs)]
+    try:
+        proc = subprocess.run(
+            cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True, timeout=timeout, check=False
+        )
+    except subprocess.TimeoutExpired:
+        return [Figure(name, name, None, "", error=f"timed out after {timeout:.0f} s")]
+    for line in reversed(proc.stdout.splitlines()):
+        if line.startswith(MARKER):
+            return [Figure.from_dict(d) for d in json.loads(line[len(MARKER) :])]
+    return [Figure(name, name, None, "", error=f"worker exited {proc.returncode} without figures")]
+
+
+def _anchor_text(f: Figure) -> str:
+    if f.anchor is None:
+        return "-"
+    return fmt_value(f.anchor, f.unit)
+
+
+def _ratio_text(f: Figure) -> str:
+    r = f.ratio
+    return "-" if r is None else f"{r:.2f}x"
+
+
+def print_table(figures: list[Figure], machine: dict[str, Any], elapsed: float, quick: bool) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    console = Console()
+    title = "gradient bench benchmarks" + (" (--quick: smoke test, not for quoting)" if quick else "")
+    table = Table(title=title, title_justify="left")
+    for col, kw in (
+        ("figure", {}),
+        ("value", {"justify": "right"}),
+        ("anchor (same run, same file)", {"justify": "right"}),
+        ("ratio", {"justify": "right"}),
+        ("target", {}),
+        ("", {}),
+    ):
+        table.add_column(col, **kw)
+    style = {"PASS": "bold green", "MISS": "bold red", "ERROR": "bold red", "INFO": "dim"}
+    for f in figures:
+        table.add_row(
+            f.label,
+            fmt_value(f.value, f.unit),
+            _anchor_text(f),
+            _ratio_text(f),
+            f.target_text(),
+            f"[{style[f.status]}]{f.status}[/]",
+        )
+    console.print(table)
+    for f in figures:
+        note = f.error or f.detail
+        if note:
+            anchor = f" [anchor: {f.anchor_label}]" if f.anchor_label else ""
+            console.print(f"  [bold]{f.label}[/]: {note}{anchor}", highlight=False)
+    console.print(machine_line(machine) + f"; total {elapsed:.0f} s", highlight=False)
+
+
+def machine_line(m: dict[str, Any]) -> str:
+    return (
+        f"machine: {m['cpu']}, {m['cores']} cores ({m['cores_usable']} usable), "
+        f"{m['memory_gb']} GB, {m['os']}; Python {m['python']}, numpy {m['numpy']}, "
+        f"python-can {m['python-can']}, mcap {m['mcap']}, textual {m['textual']}; "
+        f"commit {m['commit']}; load avg at start {m['loadavg_at_start'][0]}"
+    )
+
+
+def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
+    lines = [
+        "| figure | value | anchor (same run, same file) | ratio | target | result |",
+        "|---|---:|---:|---:|---|---|",
+    ]
+    for f in figures:
+        anchor = _anchor_text(f)
+        if f.anchor_label and f.anchor is not None:
+            anchor = f"{anchor} ({f.anchor_label.split(' ')[0]} {' '.join(f.anchor_label.split(' ')[1:2])})"
+        lines.append(
+            f"| {f.label} | {fmt_value(f.value, f.unit)} | {anchor} | {_ratio_text(f)} | "
+            f"{f.target_text()} | {f.status} |"
+        )
+    lines.append("")
+    lines.append(f"{when}, {machine_line(machine)}.")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__.split("\n\n")[1])
+    ap.add_argument("--quick", action="store_true", help="~1 minute smoke run (small files)")
+    ap.add_argument("--json", metavar="OUT", default=str(DEFAULT_JSON), help="results file")
+    ap.add_argument("--markdown", metavar="OUT", help="also write the table as Markdown")
+    ap.add_argument(
+        "--only",
+        nargs="+",
+        choices=sorted({p[0] for p in PLAN}),
+        help="run only these measurements",
+    )
+    args = ap.parse_args(argv)
+    machine = machine_info()
+    started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    t0 = time.monotonic()
+    figures: list[Figure] = []
+    runs = []
+    for name, full, quick, timeout in PLAN:
+        if args.only and name not in args.only:
+            continue
+        kwargs = quick if args.quick else full
+        print(f"benchmarks: {name} {kwargs} ...", file=sys.stderr, flush=True)
+        t = time.monotonic()
+        got = run_worker(name, kwargs, timeout if not args.quick else timeout / 2)
+        runs.append({"name": name, "kwargs": kwargs, "seconds": round(time.monotonic() - t, 1)})
+        figures += got
+    elapsed = time.monotonic() - t0
+    machine["loadavg_at_end"] = [round(x, 2) for x in os.getloadavg()]
+    print_table(figures, machine, elapsed, args.quick)
+    doc = {
+        "started": started,
+        "quick": args.quick,
+        "elapsed_s": round(elapsed, 1),
+        "machine": machine,
+        "runs": runs,
+        "figures": [f.as_dict() for f in figures],
+        "summary": {s: sum(f.status == s for f in figures) for s in ("PASS", "MISS", "ERROR", "INFO")},
+    }
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    print(f"benchmarks: wrote {out}", file=sys.stderr)
+    if args.markdown:
+        Path(args.markdown).write_text(markdown(figures, machine, started))
+        print(f"benchmarks: wrote {args.markdown}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

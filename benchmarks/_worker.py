@@ -1,0 +1,57 @@
+"""Run one measurement in this process and print its figures as JSON (used by __main__).
+
+    python -m benchmarks._worker NAME '{"kwarg": value}'
+
+Progress goes to stderr; the last stdout line is ``FIGURES <json list>``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import traceback
+from typing import Any
+
+from benchmarks.common import Figure
+
+MARKER = "FIGURES "
+
+
+def _log(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
+    if name == "replay":
+        from benchmarks import replay
+
+        return replay.measure(**kwargs)
+    if name == "fusion":
+        from benchmarks import fusion
+
+        return fusion.measure(**kwargs)
+    if name == "live_rate":
+        from benchmarks import live
+
+        return live.measure_rate(log=_log, **kwargs)
+    if name == "latency":
+        from benchmarks import live
+
+        return live.measure_latency(**kwargs)
+    raise SystemExit(f"unknown measurement {name!r}")
+
+
+def main(argv: list[str]) -> int:
+    name = argv[0]
+    kwargs = json.loads(argv[1]) if len(argv) > 1 else {}
+    try:
+        figures = run(name, kwargs)
+    except Exception as exc:  # reported as an ERROR row, with the traceback on stderr
+        traceback.print_exc()
+        figures = [Figure(name, name, None, "", error=f"{type(exc).__name__}: {exc}")]
+    print(MARKER + json.dumps([f.as_dict() for f in figures]), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

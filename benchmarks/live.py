@@ -1,0 +1,314 @@
+"""The live pipeline on python-can's ``virtual`` bus: zero-loss frame rate and latency.
+
+One run (:func:`run_live`) is what ``bench run --emulate`` / ``bench tui --emulate`` do:
+the virtual board (:func:`devices.emulator.start_virtual_board`) plays a 1 kHz x 3 channel
+scenario on a private virtual channel, ``speed`` times faster than real time for the rate
+search; a :class:`devices.bus.CanBusSource` listens; a :class:`bench.live.LiveRunner`
+runs the pipeline; a :class:`bench.mcaplog.writer.McapSink` logs; optionally the TUI
+(:class:`bench.tui.app.BenchApp`) is attached, headless, polling snapshots as on a screen.
+
+* frames sent = the board's ``frames_sent`` (frames it handed to the bus without error);
+  frames logged = frame messages in the finished MCAP file, counted by reading it back.
+  A run is lossless when sent == received == logged, nothing was dropped anywhere, the
+  file is complete and the board kept its pace (achieved rate >= 97 % of the asked rate).
+* latency = (wall time when the step's results reach the sinks) - (receive time of the
+  sample's last frame, stamped by the virtual bus when the board sent it): the whole path
+  acquisition -> queue -> decode/assemble/fuse -> sinks, for every result of the run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import os
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.common import Figure, board_frame_rate, board_scenario
+
+RATE_TARGET = 20_000.0
+P99_TARGET_MS = 5.0
+PACE_TOLERANCE = 0.97
+_ids = itertools.count(1)
+
+
+class LatencySink:
+    """Records frame-to-result latency of every result (a Sink; cheap, bounded memory)."""
+
+    def __init__(self, capacity: int = 4_000_000) -> None:
+        self._buf = np.empty(capacity, dtype=np.float64)
+        self.n = 0
+        self.frames = 0
+        self.results = 0
+
+    def write(self, step: Any) -> None:
+        now = time.time()
+        self.frames += len(step.frames)
+        res = step.results
+        if len(res):
+            lat = now - res["t"]
+            lat = lat[np.isfinite(lat)]
+            k = min(len(lat), len(self._buf) - self.n)
+            self._buf[self.n : self.n + k] = lat[:k]
+            self.n += k
+            self.results += len(res)
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def values_ms(self) -> np.ndarray:
+        return self._buf[: self.n] * 1000.0
+
+
+@dataclass
+class LiveRun:
+    rate_asked: float
+    seconds: float
+    tui: bool
+    sent: int = 0
+    received: int = 0
+    dropped: int = 0
+    logged: int = 0
+    mcap_complete: bool = False
+    mcap_dropped: int = 0
+    board_errors: int = 0
+    rate_achieved: float = 0.0
+    results: int = 0
+    p50_ms: float = float("nan")
+    p99_ms: float = float("nan")
+    max_ms: float = float("nan")
+    snapshot_p99_ms: float = float("nan")
+    tui_snapshots: int = 0
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def lossless(self) -> bool:
+        return (
+            self.sent > 0
+            and self.sent == self.received == self.logged
+            and self.dropped == 0
+            and self.mcap_dropped == 0
+            and self.board_errors == 0
+            and self.mcap_complete
+            and not self.errors
+        )
+
+    @property
+    def paced(self) -> bool:
+        return self.rate_achieved >= PACE_TOLERANCE * self.rate_asked
+
+    def as_dict(self) -> dict[str, Any]:
+        d = dict(self.__dict__)
+        d["lossless"] = self.lossless
+        d["paced"] = self.paced
+        return d
+
+    def summary(self) -> str:
+        return (
+            f"asked {self.rate_asked:,.0f}/s achieved {self.rate_achieved:,.0f}/s over "
+            f"{self.seconds:.0f} s: sent {self.sent} received {self.received} logged "
+            f"{self.logged} dropped {self.dropped}+{self.mcap_dropped}; latency p50 "
+            f"{self.p50_ms:.2f} p99 {self.p99_ms:.2f} max {self.max_ms:.1f} ms"
+            + (f"; errors: {'; '.join(self.errors)}" if self.errors else "")
+        )
+
+
+def _count_logged(path: Path) -> tuple[int, bool]:
+    from bench.mcaplog.reader import McapLog
+    from bench.mcaplog.schemas import FRAME_TOPIC
+
+    with McapLog(path) as log:
+        return int(log.message_counts().get(FRAME_TOPIC, 0)), bool(log.complete)
+
+
+def run_live(
+    rate: float | None,
+    seconds: float,
+    *,
+    tui: bool = False,
+    workdir: str | None = None,
+    faults: list[dict[str, Any]] | None = None,
+    on_progress: Any = None,
+) -> LiveRun:
+    """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s)."""
+    import can
+
+    from bench.config import Config
+    from bench.live import LiveRunner
+    from bench.liveopts import LiveSetup
+    from bench.mcaplog.writer import McapSink
+    from devices.bus import CanBusSource
+    from devices.emulator import scenario_from_dict, simulate, start_virtual_board
+
+    base = board_frame_rate()
+    speed = 1.0 if rate is None else rate / base
+    run = LiveRun(base * speed, seconds, tui)
+    scenario = scenario_from_dict(
+        board_scenario(min(3600.0, seconds * speed + 2.0), faults=faults or []), "benchmark"
+    )
+    sim = simulate(scenario)
+    config = Config(sample_rate_hz=scenario.sample_rate_hz)
+    channel = f"bench-benchmark-{os.getpid()}-{next(_ids)}"
+    bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    source = CanBusSource(bus=bus, owns_bus=True)
+    lat = LatencySink()
+    with tempfile.TemporaryDirectory(prefix="bench-live-", dir=workdir) as tmp:
+        path = Path(tmp) / "run.mcap"
+        mcap = McapSink(path, config, {"source": "benchmark virtual board", "mode": "benchmark"})
+        runner = LiveRunner(source, config, [mcap, lat], description="benchmark")
+        runner.recording = mcap
+        runner.start()
+        player = start_virtual_board(sim, channel, speed=speed)
+        t0 = time.perf_counter()
+        if tui:
+            run.tui_snapshots = _with_tui(runner, player, seconds, on_progress)
+        else:
+            _wait(player, seconds, on_progress, runner)
+        player.stop()
+        elapsed = time.perf_counter() - t0
+        run.sent = player.frames_sent
+        run.board_errors = player.errors
+        run.rate_achieved = run.sent / elapsed if elapsed > 0 else 0.0
+        deadline = time.monotonic() + 30.0
+        while runner.frames_received < run.sent and time.monotonic() < deadline:
+            time.sleep(0.02)  # the bus holds what was sent; let the source read all of it
+        snap = runner.snapshot(last=1)
+        runner.stop(timeout=60.0)
+        if not runner.wait(60.0):
+            run.errors.append("runner did not finish within 60 s")
+        run.received = runner.frames_received
+        run.dropped = runner.frames_dropped
+        run.mcap_dropped = mcap.dropped + mcap.frames_lost
+        if runner.error:
+            run.errors.append(runner.error)
+        if mcap.error:
+            run.errors.append(f"mcap: {mcap.error}")
+        run.logged, run.mcap_complete = _count_logged(path)
+    ms = lat.values_ms()
+    run.results = lat.results
+    if len(ms):
+        run.p50_ms, run.p99_ms = (float(x) for x in np.percentile(ms, [50, 99]))
+        run.max_ms = float(ms.max())
+    run.snapshot_p99_ms = float(snap.latency_ms[1])
+    return run
+
+
+def _wait(player: Any, seconds: float, on_progress: Any, runner: Any) -> None:
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end and not player.done:
+        time.sleep(min(1.0, max(0.0, end - time.perf_counter())))
+        if on_progress is not None:
+            on_progress(runner)
+
+
+def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> int:
+    """Run the bench TUI headless in this (main) thread for ``seconds``, as `bench tui` would
+    (it polls snapshots at its own rate, renders every panel); returns snapshots applied."""
+    from bench.tui.app import BenchApp
+    from bench.tui.session import Recorder, Session
+
+    session = Session(runner=runner, recorder=Recorder())
+    app = BenchApp(session)
+
+    async def pilot(p: Any) -> None:
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end and not player.done:
+            await asyncio.sleep(min(1.0, max(0.0, end - time.perf_counter())))
+            if on_progress is not None:
+                on_progress(runner)
+        app.exit(0)
+
+    app.run(headless=True, size=(160, 48), auto_pilot=pilot)
+    return int(getattr(app, "snapshots_applied", 0))
+
+
+# ------------------------------------------------------------------------------- figures
+def find_max_rate(
+    probe_s: float, confirm_s: float, ladder: list[float], log: Any = print
+) -> tuple[float, list[LiveRun]]:
+    """Highest rate on ``ladder`` that is lossless (and paced) for ``probe_s``, then
+    confirmed for ``confirm_s``; a failed confirmation steps down the ladder."""
+    runs: list[LiveRun] = []
+    best = -1
+    for i, rate in enumerate(ladder):
+        r = run_live(rate, probe_s)
+        runs.append(r)
+        log(f"  probe  {r.summary()}")
+        if not (r.lossless and r.paced):
+            break
+        best = i
+    while best >= 0:
+        r = run_live(ladder[best], confirm_s)
+        runs.append(r)
+        log(f"  confirm {r.summary()}")
+        if r.lossless and r.paced:
+            return r.rate_achieved, runs
+        best -= 1
+    return 0.0, runs
+
+
+def measure_rate(confirm_s: float = 30.0, probe_s: float = 5.0, log: Any = print) -> list[Figure]:
+    ladder = [10_000.0, 20_000.0, 25_000.0, 30_000.0, 40_000.0, 50_000.0, 60_000.0]
+    rate, runs = find_max_rate(probe_s, confirm_s, ladder, log)
+    confirmed = [r for r in runs if r.seconds == confirm_s and r.lossless and r.paced]
+    last = confirmed[-1] if confirmed else None
+    detail = (
+        f"sent = received = logged = {last.sent} over {confirm_s:.0f} s, MCAP complete; "
+        if last
+        else "no rate on the ladder was lossless; "
+    )
+    failed = [r for r in runs if not (r.lossless and r.paced)]
+    if failed:
+        f = failed[0]
+        why = "not paced" if f.lossless else "loss"
+        detail += f"first failure at {f.rate_asked / 1e3:.0f} k ({why}: {f.summary()})"
+    return [
+        Figure(
+            "live_max_rate",
+            f"live zero-loss rate, virtual bus ({confirm_s:.0f} s)",
+            rate,
+            "frames/s",
+            target=RATE_TARGET,
+            detail=detail,
+            extra={"runs": [r.as_dict() for r in runs], "ladder": ladder},
+        )
+    ]
+
+
+def measure_latency(seconds: float = 30.0, tui: bool = False) -> list[Figure]:
+    r = run_live(None, seconds, tui=tui)
+    label = "TUI attached headless" if tui else "no TUI"
+    detail = (
+        f"{r.results} results over {seconds:.0f} s at 1 kHz x 3 ch, MCAP on; p50 {r.p50_ms:.2f} ms, "
+        f"max {r.max_ms:.1f} ms; lossless={r.lossless}"
+        + (f"; {r.tui_snapshots} TUI snapshots" if tui else "")
+    )
+    key = "tui" if tui else "notui"
+    err = "; ".join(r.errors)
+    return [
+        Figure(f"latency_p50_{key}", f"latency p50, {label}", r.p50_ms, "ms",
+               detail=f"1 kHz x 3 ch, {seconds:.0f} s", error=err),
+        Figure(f"latency_p99_{key}", f"latency p99, {label}", r.p99_ms, "ms",
+               target=P99_TARGET_MS, op="<=", detail=detail, error=err,
+               extra=r.as_dict()),
+    ]
+
+
+if __name__ == "__main__":  # pragma: no cover - manual probing
+    import sys
+
+    rate = float(sys.argv[1]) if len(sys.argv) > 1 and sys.argv[1] != "board" else None
+    secs = float(sys.argv[2]) if len(sys.argv) > 2 else 10.0
+    print(run_live(rate, secs, tui="--tui" in sys.argv).summary())
+    with contextlib.suppress(Exception):
+        print(threading.enumerate())

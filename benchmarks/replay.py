@@ -1,0 +1,190 @@
+"""Replay throughput from candump, BLF and MCAP, next to the bare library readers; MCAP write.
+
+All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
+
+* The bench figure is the whole ``bench replay`` path without CSV text:
+  ``replay(open_log(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
+  statistics. With a CSV file it is reported separately (``replay candump + CSV``).
+* The anchor for .log and .blf is python-can's bare iteration, nothing else:
+  ``for msg in can.LogReader(path): pass``.
+* python-can cannot read MCAP; the MCAP anchor is the ``mcap`` package's own reader iterating
+  the same file's frame messages (``make_reader(f).iter_messages(topics=[...])``).
+* MCAP write: a :class:`bench.mcaplog.writer.McapSink` (what a live run logs: frames,
+  samples, results, status, events) fed the pipeline steps of the whole log, from the
+  first ``write`` to the end of ``close()`` (summary and footer written). The file it
+  writes is the one the MCAP replay then reads, i.e. a recorded run.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import Figure, frames_for, timed, warm_file
+
+CANDUMP_RATIO_TARGET = 3.0
+MCAP_REPLAY_TARGET = 2e6
+
+
+def logreader_iterate(path: Path) -> int:
+    """The anchor: python-can's bare LogReader iteration."""
+    import can
+
+    n = 0
+    for _msg in can.LogReader(path):
+        n += 1
+    return n
+
+
+def mcap_iterate(path: Path, topic: str) -> int:
+    """The MCAP anchor: the mcap package's reader over the frame messages."""
+    from mcap.reader import make_reader
+
+    n = 0
+    with open(path, "rb") as f:
+        for _ in make_reader(f).iter_messages(topics=[topic]):
+            n += 1
+    return n
+
+
+def bench_replay(path: Path, csv: Path | None = None) -> Any:
+    """The bench's replay path, as `bench replay` runs it (collect=False, no summary)."""
+    from bench.config import Config
+    from bench.replay import CsvSink, replay
+    from devices.files import open_log
+
+    source = open_log(path)
+    sinks = [CsvSink(str(csv))] if csv is not None else []
+    try:
+        return replay(source, Config(), sinks, collect=False)
+    finally:
+        for s in sinks:
+            s.close()
+        source.close()
+
+
+def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
+    from bench.config import Config
+    from bench.pipeline import Pipeline
+    from devices.base import SourceBatch
+
+    p = Pipeline(Config())
+    steps = [p.process(SourceBatch(frames[i : i + batch])) for i in range(0, len(frames), batch)]
+    steps.append(p.finish())
+    return steps
+
+
+def write_mcap(path: Path, steps: list[Any]) -> Any:
+    from bench.config import Config
+    from bench.mcaplog.writer import McapSink
+
+    sink = McapSink(path, Config(), {"source": "benchmark", "mode": "benchmark"})
+    for step in steps:
+        sink.write(step)
+    sink.close()
+    return sink
+
+
+def _replay_figure(key: str, label: str, path: Path, repeat: int, anchor: float | None,
+                   anchor_label: str, n: int, **target: Any) -> Figure:
+    dt, out = timed(lambda: bench_replay(path), repeat)
+    seq = out.pipeline.seq
+    return Figure(
+        key,
+        label,
+        seq / dt,
+        "frames/s",
+        anchor=anchor,
+        anchor_label=anchor_label,
+        detail=f"{seq} frames, {out.pipeline.stats.samples} samples in {dt:.2f} s (best of "
+        f"{repeat}); {path.stat().st_size / 1e6:.0f} MB",
+        extra={"frames": seq, "seconds": dt, "expected_frames": n},
+        **target,
+    )
+
+
+def measure(n_frames: int = 1_000_000, repeat: int = 3, workdir: str | None = None) -> list[Figure]:
+    from bench.mcaplog.schemas import FRAME_TOPIC
+    from devices.writers import write_candump, write_with_can_logger
+
+    figures: list[Figure] = []
+    with tempfile.TemporaryDirectory(prefix="bench-replay-", dir=workdir) as tmp:
+        d = Path(tmp)
+        t0 = time.perf_counter()
+        frames = frames_for(n_frames)
+        log, blf, mcap = d / "board.log", d / "board.blf", d / "board.mcap"
+        write_candump(log, frames)
+        write_with_can_logger(blf, frames)
+        gen_s = time.perf_counter() - t0
+
+        # -- candump ------------------------------------------------------------------------
+        warm_file(log)
+        a_dt, a_n = timed(lambda: logreader_iterate(log), repeat)
+        anchor = a_n / a_dt
+        fig = _replay_figure(
+            "replay_candump", "replay candump .log", log, repeat, anchor,
+            f"python-can LogReader {anchor / 1e3:.0f} k frames/s", n_frames,
+            target=CANDUMP_RATIO_TARGET, on="ratio",
+        )
+        fig.extra["anchor_frames"] = a_n
+        fig.extra["generation_s"] = gen_s
+        figures.append(fig)
+
+        csv = d / "out.csv"
+        dt, out = timed(lambda: bench_replay(log, csv), 1)
+        figures.append(
+            Figure(
+                "replay_candump_csv",
+                "replay candump .log + CSV",
+                out.pipeline.seq / dt,
+                "frames/s",
+                anchor=anchor,
+                anchor_label="python-can LogReader (same file)",
+                detail=f"as above plus the per-sample CSV ({csv.stat().st_size / 1e6:.0f} MB)",
+            )
+        )
+
+        # -- BLF ----------------------------------------------------------------------------
+        warm_file(blf)
+        a_dt, a_n = timed(lambda: logreader_iterate(blf), repeat)
+        anchor = a_n / a_dt
+        figures.append(
+            _replay_figure(
+                "replay_blf", "replay BLF .blf", blf, repeat, anchor,
+                f"python-can LogReader {anchor / 1e3:.0f} k frames/s", n_frames,
+            )
+        )
+
+        # -- MCAP write, then MCAP replay of that recorded run --------------------------------
+        steps = pipeline_steps(frames)
+        t0 = time.perf_counter()
+        sink = write_mcap(mcap, steps)
+        dt = time.perf_counter() - t0
+        error = sink.error or ""
+        figures.append(
+            Figure(
+                "mcap_write",
+                "MCAP write (McapSink, full run log)",
+                len(frames) / dt,
+                "frames/s",
+                detail=f"{len(frames)} frames + {sum(len(s.results) for s in steps)} results, "
+                f"samples, events; {mcap.stat().st_size / 1e6:.0f} MB zstd, write+close "
+                f"{dt:.2f} s; logged {sink.frames_logged}",
+                error=error,
+                extra={"frames_logged": sink.frames_logged, "dropped": sink.dropped},
+            )
+        )
+        del steps
+        warm_file(mcap)
+        a_dt, a_n = timed(lambda: mcap_iterate(mcap, FRAME_TOPIC), repeat)
+        anchor = a_n / a_dt
+        figures.append(
+            _replay_figure(
+                "replay_mcap", "replay MCAP (recorded run)", mcap, repeat, anchor,
+                f"mcap package reader {anchor / 1e3:.0f} k frames/s", n_frames,
+                target=MCAP_REPLAY_TARGET,
+            )
+        )
+    return figures
