@@ -156,10 +156,13 @@ class ResidualIsolator:
             msum = np.concatenate(
                 [np.zeros((1, 3), dtype=np.int64), np.cumsum(ext[:, 1:4], axis=0)]
             )
-            mean_miss = np.abs(msum[w:] - msum[:n]) / (count[:, None] * FIXED_POINT)
-            order = np.sort(mean_miss, axis=1)
-            ok = alarm & (order[:, 0] < ISOLATION_RATIO * order[:, 1])
-            single[ok] = np.argmin(mean_miss[ok], axis=1)
+            hit = np.flatnonzero(alarm)
+            mean_miss = np.abs(msum[w:][hit] - msum[hit]) / (count[hit, None] * FIXED_POINT)
+            m0, m1, m2 = mean_miss[:, 0], mean_miss[:, 1], mean_miss[:, 2]
+            best = np.minimum(np.minimum(m0, m1), m2)
+            second = np.maximum(np.minimum(m0, m1), np.minimum(np.maximum(m0, m1), m2))
+            ok = best < ISOLATION_RATIO * second
+            single[hit[ok]] = np.argmin(mean_miss[ok], axis=1)
         if w > 1:
             kept = ext[-(w - 1) :]
             self.tail = deque(map(tuple, kept.tolist()))

@@ -120,9 +120,12 @@ class ReferenceAcceleration:
         pending = self._pending
         if len(pending) and pending["seq"][0] < self._max_seq:
             k = int(np.searchsorted(pending["seq"], self._max_seq, side="left"))
-            new = self._apply(pending[:k], np.full(k, b), np.full(k, off))
+            rows = pending[:k]
             self._pending = pending[k:]
-            self._last = (float(new[0][-1]), float(new[1][-1]), bool(new[2][-1]), bool(new[3][-1]))
+            for ts, ft, mm in zip(
+                rows["timestamp"].tolist(), rows["t"].tolist(), rows["speed"].tolist(), strict=True
+            ):
+                self._last = self._apply_one(ts, ft, mm, b, off)
         acc, when, still, ok = self._last
         if not (b - when <= self.settings.coast_s and (ok or still)):
             return math.nan
@@ -172,3 +175,39 @@ class ReferenceAcceleration:
         self._odo_ticks = int(odo[-1])
         self._zero_since = int(since[-1]) if zero[-1] else None
         return np.array(acc), when, still, ok
+
+    def _apply_one(
+        self, ts: int, t: float, speed_mm: int, anchor_b: float, anchor_off: float
+    ) -> tuple[float, float, bool, bool]:
+        """Scalar twin of :meth:`_apply` for one frame."""
+        s = self.settings
+        if self._started:
+            d = (ts - self._prev_ts) % TS_WRAP
+            step = (t - self._prev_t) / TICK_S
+            if step != step:
+                step = (anchor_b - self._prev_anchor_b) / TICK_S
+            d += TS_WRAP * max(round((step - d) / TS_WRAP), 0)
+            restart = d > s.coast_s / TICK_S
+        else:
+            d = ts - self._odo_ticks
+            restart = True
+            self._started = True
+        odo = self._odo_ticks + d
+        zero = speed_mm == 0
+        since = NEVER if self._zero_since is None else self._zero_since
+        if zero and (self._zero_since is None or restart):
+            since = odo
+        still = zero and odo - since >= s.standstill_s / TICK_S
+        o = odo * TICK_S
+        x = t - o
+        if math.isfinite(x):
+            self._odo_base = min(self._odo_base, x - self.rho * o)
+        base = self._odo_base
+        mapped = o + (self.rho * o + base) - anchor_off if math.isfinite(base) else math.nan
+        when = mapped if math.isfinite(mapped) else anchor_b
+        acc, var = self.kf.run([d * TICK_S], [speed_mm * 1e-3], [restart])
+        self._prev_ts, self._prev_t, self._prev_anchor_b = ts, t, anchor_b
+        self._odo_ticks = odo
+        self._zero_since = since if zero else None
+        sigma = s.a_ref_sigma_mps2
+        return acc[0], when, still, var[0] <= sigma * sigma

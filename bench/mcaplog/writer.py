@@ -764,6 +764,9 @@ class McapSink:
 
     # -- caller side (acquisition thread) --------------------------------------------------
     def write(self, step: StepOutput) -> None:
+        if self._closed:  # a write after close() is a caller bug; count it, do not hang
+            self.dropped += len(step.frames)
+            return
         try:
             self._queue.put_nowait((step, time.time_ns()))
         except queue.Full:
@@ -773,6 +776,8 @@ class McapSink:
                 log.warning("MCAP log %s: writer queue full, dropping frames (counted)", self.path)
 
     def mark(self, t: float, text: str) -> None:
+        if self._closed:
+            return
         try:
             self._queue.put_nowait(("mark", float(t), str(text), time.time_ns()))
         except queue.Full:

@@ -19,6 +19,7 @@ from textual import work
 from textual.app import App, ComposeResult, SystemCommand
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
+from textual.css.query import NoMatches
 from textual.screen import Screen
 from textual.widgets import Footer, Static
 
@@ -147,10 +148,13 @@ class BenchApp(App[int]):
         self._polling = False
         self.snapshots_received += 1
         self.last_snapshot = message.snapshot
-        self._follow_replay(message.snapshot)
-        if not self.display_paused:
-            self._apply(message.snapshot, message.plot, message.rates)
-        self._update_status_bar()
+        try:
+            self._follow_replay(message.snapshot)
+            if not self.display_paused:
+                self._apply(message.snapshot, message.plot, message.rates)
+            self._update_status_bar()
+        except NoMatches:  # a snapshot that arrives while the screen is being torn down
+            pass
 
     def apply_snapshot(self, snap: Snapshot) -> None:
         """Show a snapshot now, on the UI thread (tests, and fixed-snapshot sessions)."""
