@@ -81,7 +81,7 @@ def open_emulator(scenario_path: str | Path, speed: float = 1.0) -> LiveSetup:
     scenario = load_scenario(path)
     channel = f"acb3-emu-{os.getpid()}-{next(_emu_ids)}"
     bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    source = CanBusSource(bus=bus, description=f"virtual board {path.name}")
+    source = CanBusSource(bus=bus, owns_bus=True, description=f"virtual board {path.name}")
     handle = start_virtual_board(scenario, channel, speed=speed)
     return LiveSetup(source, f"virtual board {path.name}", f"emu-{_slug(path.stem)}", handle, path)
 

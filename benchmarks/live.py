@@ -40,10 +40,18 @@ _ids = itertools.count(1)
 
 
 class LatencySink:
-    """Records frame-to-result latency of every result (a Sink; cheap, bounded memory)."""
+    """Frame-to-result latency of every result, kept as a fixed histogram (a Sink).
 
-    def __init__(self, capacity: int = 4_000_000) -> None:
-        self._buf = np.empty(capacity, dtype=np.float64)
+    Constant memory however long the run (0.01 ms bins up to 2 s, one overflow bin), so a
+    soak's memory figure measures the bench, not this instrument."""
+
+    BIN_MS = 0.01
+    BINS = 200_000
+
+    def __init__(self) -> None:
+        self._hist = np.zeros(self.BINS + 1, dtype=np.int64)
+        self._hist[:] = 0  # touch the pages now, not during the run
+        self.max_ms = float("nan")
         self.n = 0
         self.frames = 0
         self.results = 0
@@ -53,12 +61,15 @@ class LatencySink:
         self.frames += len(step.frames)
         res = step.results
         if len(res):
-            lat = now - res["t"]
-            lat = lat[np.isfinite(lat)]
-            k = min(len(lat), len(self._buf) - self.n)
-            self._buf[self.n : self.n + k] = lat[:k]
-            self.n += k
             self.results += len(res)
+            lat = (now - res["t"]) * 1000.0
+            lat = lat[np.isfinite(lat)]
+            if len(lat):
+                idx = np.clip(lat / self.BIN_MS, 0, self.BINS).astype(np.int64)
+                np.add.at(self._hist, idx, 1)
+                self.n += len(lat)
+                m = float(lat.max())
+                self.max_ms = m if not self.max_ms >= m else self.max_ms
 
     def mark(self, t: float, text: str) -> None:
         pass
@@ -66,8 +77,11 @@ class LatencySink:
     def close(self) -> None:
         pass
 
-    def values_ms(self) -> np.ndarray:
-        return self._buf[: self.n] * 1000.0
+    def percentile(self, q: float) -> float:
+        if not self.n:
+            return float("nan")
+        k = int(np.searchsorted(np.cumsum(self._hist), q / 100.0 * self.n, side="left"))
+        return (k + 0.5) * self.BIN_MS if k < self.BINS else float("inf")
 
 
 @dataclass
@@ -89,6 +103,7 @@ class LiveRun:
     max_ms: float = float("nan")
     snapshot_p99_ms: float = float("nan")
     tui_snapshots: int = 0
+    stats: dict[str, Any] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
 
     @property
@@ -139,6 +154,7 @@ def run_live(
     workdir: str | None = None,
     faults: list[dict[str, Any]] | None = None,
     on_progress: Any = None,
+    mcap_path: Path | None = None,
 ) -> LiveRun:
     """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s)."""
     import can
@@ -163,7 +179,7 @@ def run_live(
     source = CanBusSource(bus=bus, owns_bus=True)
     lat = LatencySink()
     with tempfile.TemporaryDirectory(prefix="bench-live-", dir=workdir) as tmp:
-        path = Path(tmp) / "run.mcap"
+        path = Path(mcap_path) if mcap_path is not None else Path(tmp) / "run.mcap"
         mcap = McapSink(path, config, {"source": "benchmark virtual board", "mode": "benchmark"})
         runner = LiveRunner(source, config, [mcap, lat], description="benchmark")
         runner.recording = mcap
@@ -171,7 +187,9 @@ def run_live(
         player = start_virtual_board(sim, channel, speed=speed)
         t0 = time.perf_counter()
         if tui:
-            run.tui_snapshots = _with_tui(runner, player, seconds, on_progress)
+            run.tui_snapshots, code = _with_tui(runner, player, seconds, on_progress)
+            if code:
+                run.errors.append(f"the TUI exited with {code}")
         else:
             _wait(player, seconds, on_progress, runner)
         player.stop()
@@ -194,11 +212,9 @@ def run_live(
         if mcap.error:
             run.errors.append(f"mcap: {mcap.error}")
         run.logged, run.mcap_complete = _count_logged(path)
-    ms = lat.values_ms()
+        run.stats = runner.pipeline.stats.as_dict()
     run.results = lat.results
-    if len(ms):
-        run.p50_ms, run.p99_ms = (float(x) for x in np.percentile(ms, [50, 99]))
-        run.max_ms = float(ms.max())
+    run.p50_ms, run.p99_ms, run.max_ms = lat.percentile(50), lat.percentile(99), lat.max_ms
     run.snapshot_p99_ms = float(snap.latency_ms[1])
     return run
 
@@ -211,7 +227,7 @@ def _wait(player: Any, seconds: float, on_progress: Any, runner: Any) -> None:
             on_progress(runner)
 
 
-def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> int:
+def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> tuple[int, int]:
     """Run the bench TUI headless in this (main) thread for ``seconds``, as `bench tui` would
     (it polls snapshots at its own rate, renders every panel); returns snapshots applied."""
     from bench.tui.app import BenchApp
@@ -228,8 +244,8 @@ def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> int
                 on_progress(runner)
         app.exit(0)
 
-    app.run(headless=True, size=(160, 48), auto_pilot=pilot)
-    return int(getattr(app, "snapshots_applied", 0))
+    code = app.run(headless=True, size=(160, 48), auto_pilot=pilot)
+    return int(getattr(app, "snapshots_applied", 0)), int(code or app.return_code or 0)
 
 
 # ------------------------------------------------------------------------------- figures

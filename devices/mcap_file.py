@@ -19,9 +19,14 @@ from devices.base import FileSource, SourceBatch, SourceNotice
 class McapFrameSource(FileSource):
     """Frames of a bench MCAP file as SourceBatches (see bench.mcaplog.reader)."""
 
-    def __init__(self, path: str | Path, **_options: object) -> None:
-        # options meant for other file kinds (devices.files.open_log passes them all) do
-        # not apply: an MCAP file is read chunk by chunk whatever they say
+    def __init__(self, path: str | Path, *, batching: str = "merge", **_options: object) -> None:
+        """``batching``: "merge" (default, fast: chunks merged into large batches; the
+        pipeline's output does not depend on batching) or "recorded" (the live run's own
+        batches, for forensic exactness). Other options are meant for other file kinds
+        (devices.files.open_log passes them all) and do not apply here."""
+        if batching not in ("merge", "recorded"):
+            raise ValueError(f"batching must be 'merge' or 'recorded', not {batching!r}")
+        self.batching = batching
         self.path = Path(path)
         self.log = McapLog(self.path)
         run = self.log.metadata_dict().get("run", {})
@@ -34,7 +39,8 @@ class McapFrameSource(FileSource):
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         last_t = math.nan
         bad_seen = len(self.log.bad_chunks)
-        for batch, reached in self.log.iter_batches(max_frames):
+        recorded = self.batching == "recorded"
+        for batch, reached in self.log.iter_batches(max_frames, recorded=recorded):
             self._position = reached
             if len(batch.frames):
                 last_t = float(batch.frames["t"][-1])

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from devices.emulator import PtyPlayer, load_scenario, simulate, start_virtual_board
+from devices.emulator import CanPlayer, PtyPlayer, load_scenario, simulate, start_virtual_board
 from protocol.uart import deframe_bytes
 
 SHORT = """
@@ -174,6 +174,35 @@ def test_virtual_board_stops_cleanly_midway():
     assert time.monotonic() - t0 < 1.0
     assert handle.done and 0 < handle.frames_sent < len(handle.simulation.frames)
     assert handle.error is None
+
+
+class FlakyBus:
+    """A bus whose every third send fails, as a bus-off or a full TX queue would."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+        self.sent: list[can.Message] = []
+        self.closed = False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.calls += 1
+        if self.calls % 3 == 0:
+            raise can.CanOperationError("Transmit buffer full")
+        self.sent.append(msg)
+
+    def shutdown(self) -> None:
+        self.closed = True
+
+
+def test_can_player_counts_bus_errors_and_goes_on(scenario: Path):
+    sim = simulate(load_scenario(scenario))
+    bus = FlakyBus()
+    player = CanPlayer(sim, bus, speed=20.0)
+    player.start()
+    assert player.wait(5.0) and player.error is None
+    assert player.errors == len(sim.frames) // 3 and "buffer full" in player.last_error
+    assert player.frames_sent == len(bus.sent) == len(sim.frames) - player.errors
+    assert bus.closed
 
 
 def test_pty_player_streams_the_uart_bytes(scenario: Path):

@@ -177,7 +177,8 @@ def test_loss_removes_the_reported_frames_only(twin):
     assert set(mine) <= set(theirs)
     assert len(missing) == len(eff.removed_uids) == len(theirs) - len(mine) > 100
     assert all(2.0 <= t < 4.0 + 1e-3 for t, _, _ in missing)
-    assert [r for r in theirs if r not in set(missing)] == mine  # order and times untouched
+    gone = set(missing)
+    assert [r for r in theirs if r not in gone] == mine  # order and times untouched
 
 
 def test_duplicate_puts_a_copy_right_after_the_original(twin):

@@ -97,8 +97,14 @@ def sim():
     return simulate(parse_scenario(dedent(SCENARIO), "physics.toml"))
 
 
+_decoded: dict[int, list] = {}
+
+
 def decoded(sim):
-    return [decode(int(f["id"]), bytes(f["data"])) for f in sim.frames]
+    """Every frame decoded with protocol.can_codec (once per simulation)."""
+    if id(sim) not in _decoded:
+        _decoded[id(sim)] = [decode(int(f["id"]), bytes(f["data"])) for f in sim.frames]
+    return _decoded[id(sim)]
 
 
 def test_truth_follows_hand_kinematics_and_track(sim):

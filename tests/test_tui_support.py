@@ -166,9 +166,31 @@ class FakeSink:
         return {"path": self.path, "frames": self.frames, "bytes": 1000 + self.frames * 20}
 
 
-def settled_snapshot(frames: np.ndarray, config: Config | None = None) -> Snapshot:
+class NoEstimator:
+    """Stands in for the bench's estimator where a test must not depend on it (its own tests
+    cover it): every estimate unavailable, no events."""
+
+    def push(
+        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        from bench.events import EVENT_DTYPE
+        from bench.results import RESULT_DTYPE
+
+        names = ["gradient_signed", "gradient_ls", "u", "w", "a_ref", "residual"]
+        dtype = np.dtype([(n, RESULT_DTYPE[n]) for n in [*names, "degraded", "excluded"]])
+        out = np.zeros(len(samples), dtype=dtype)
+        for name in names:
+            out[name] = np.nan
+        return out, np.zeros(0, dtype=EVENT_DTYPE)
+
+
+def settled_snapshot(
+    frames: np.ndarray, config: Config | None = None, *, estimator: bool = True
+) -> Snapshot:
     """Run frames through a real LiveRunner to the end and freeze what depends on the clock."""
     runner = LiveRunner(ListSource(frames, chunk=256), config or Config())
+    if not estimator:
+        runner.pipeline.estimator = NoEstimator()  # type: ignore[assignment]
     runner.start()
     deadline = time.monotonic() + 10
     while runner.pipeline.seq < len(frames) and time.monotonic() < deadline:

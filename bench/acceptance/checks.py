@@ -399,8 +399,10 @@ def check_gradient_error(spec: CheckSpec, run: RunData) -> Measurement:
         "bias": abs(extra["bias"]),
         "std": float(err.std()),
     }[stat]
+    ref = "|truth|" if unsigned else "truth"
+    what = f"mean of {column} - {ref}" if stat == "bias" else f"{stat} of |{column} - {ref}|"
     detail = (
-        f"{stat} of |{column} - {'|truth|' if unsigned else 'truth'}| over {len(err)} samples"
+        f"{what} over {len(err)} samples"
         f"; worst {extra['max_abs']:.4g} permil at {extra['worst_at_s']:.3f} s"
     )
     return judge(spec, value, detail, **extra)

@@ -59,6 +59,7 @@ class Plan:
     config_overlay: dict[str, Any] = field(default_factory=dict)
     link: str = "can"
     duration_s: float | None = None
+    file: str = "<plan>"  # how error messages name the plan file
 
     @property
     def emulated(self) -> bool:
@@ -67,7 +68,7 @@ class Plan:
     def config(self) -> Config:
         """The calibration for an emulated run: the virtual board as built (true angles,
         sample rate, base id), with the plan's [config] overlay on top."""
-        return build_config(self.scenario, self.config_overlay, self.name)
+        return build_config(self.scenario, self.config_overlay, self.file)
 
     def scenario_toml(self) -> str:
         """The scenario as a TOML file the emulator reads back to the same Scenario."""
@@ -373,11 +374,19 @@ def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Pla
         config_overlay=overlay,
         link=w.choice("plan.link", head.get("link", "can"), LINKS),
         duration_s=None if dur is None else w.number("plan.duration_s", dur, 0.0, lo_open=True),
+        file=file,
     )
     if scenario is None and not plan.steps and plan.duration_s is None:
         raise w.error(
             "plan", "needs a [scenario], [[steps]] or plan.duration_s to know what to run"
         )
+    failing = [c.name for c in plan.checks if c.expect == "fail"]
+    if plan.expect == "fail" and not failing:
+        raise w.error(
+            "plan.expect", '"fail", but no check says expect = "fail" (which one is meant to?)'
+        )
+    if plan.expect == "pass" and failing:
+        raise w.error("plan.expect", f'"pass", but check {failing[0]!r} says expect = "fail"')
     if overlay or scenario is not None:
         plan.config()  # validate the overlay now, naming its key
     _cross_checks(w, plan)
@@ -402,6 +411,8 @@ def load_plan(name: str | Path) -> Plan:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read plan: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start})") from None
     return parse_plan(text, p.name, p)
 
 

@@ -46,7 +46,7 @@ def _sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _fmt_value(m: Measurement) -> str:
+def format_value(m: Measurement) -> str:
     if m.value is None or not math.isfinite(m.value):
         return "n/a"
     if m.unit == "fraction":
@@ -54,7 +54,7 @@ def _fmt_value(m: Measurement) -> str:
     return f"{m.value:.6g} {m.unit}"
 
 
-def _fmt_limits(m: Measurement) -> str:
+def format_limits(m: Measurement) -> str:
     parts = []
     for key, v in m.limits.items():
         shown = f"{v:.4%}" if m.unit == "fraction" else f"{v:g} {m.unit}"
@@ -121,8 +121,8 @@ def junit_xml(outcome: Outcome) -> bytes:
         text = (
             f"verdict: {m.verdict.upper()}\n"
             f"kind: {m.kind}\n"
-            f"measured: {_fmt_value(m)}\n"
-            f"limits: {_fmt_limits(m)}\n"
+            f"measured: {format_value(m)}\n"
+            f"limits: {format_limits(m)}\n"
             f"margin: {'n/a' if m.margin is None else f'{m.margin:.6g} {m.unit}'}\n"
             f"window: {_window_text(m)}\n"
             f"detail: {m.detail}\n"
@@ -363,8 +363,7 @@ def _cmap() -> Any:
     from matplotlib.colors import LinearSegmentedColormap
 
     cmap = LinearSegmentedColormap.from_list("fails", ["#ffffff", "#f4a582", "#b2182b"])
-    cmap.set_bad("#dddddd")
-    return cmap
+    return cmap.with_extremes(bad="#dddddd")
 
 
 _EVENT_ROWS = (
@@ -490,7 +489,7 @@ def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str])
     for m in outcome.measurements:
         rows.append(
             f"<tr class='{m.verdict}'><td>{e(m.name)}</td><td>{e(m.kind)}</td>"
-            f"<td>{e(_fmt_value(m))}</td><td>{e(_fmt_limits(m))}</td>"
+            f"<td>{e(format_value(m))}</td><td>{e(format_limits(m))}</td>"
             f"<td>{'' if m.margin is None else e(f'{m.margin:.4g}')}</td>"
             f"<td>{e(_window_text(m))}</td><td><b>{m.verdict.upper()}</b>"
             f"{'' if m.expect is None else f' (plan expects {e(m.expect)})'}</td>"

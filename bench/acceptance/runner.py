@@ -96,6 +96,8 @@ def load_answers(path: str | Path) -> list[Answer]:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read steps file: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from None
     for key in data:
@@ -498,6 +500,8 @@ def _run_live(
             time.sleep(0.02)
 
     windows: list[StepWindow] = []
+    unattended = opts.yes or opts.answers is not None
+    prev_end = 0.0
     runner.start()
     try:
         collector.updated = time.monotonic()
@@ -507,8 +511,15 @@ def _run_live(
             a = _ask(s, opts)
             if a.answer == "abort":
                 raise BenchError(f"step {s.index} aborted by the operator")
-            start = run_time() or 0.0
+            if unattended and s.at_s is not None:
+                # a programmed table (or the rehearsal) is at the step from at_s on, as in
+                # an emulated run; the time of the last processed sample would only add the
+                # granularity of the batches the pipeline happened to get
+                start = max(s.at_s, prev_end)
+            else:
+                start = run_time() or 0.0  # the operator's Enter
             w = _window(s, a, start)
+            prev_end = w.to_s if a.answer != "skip" else start
             windows.append(w)
             runner.mark(f"step {s.index} {a.answer}: {s.prompt} (expect {w.expected_permil:g})")
             if a.answer != "skip":
@@ -521,10 +532,11 @@ def _run_live(
                 if runner.error:
                     raise BenchError(runner.error)
                 time.sleep(0.05)
-            time.sleep(DRAIN_S)
     finally:
         if player is not None:
-            player.stop()
+            if not player.done:
+                player.stop()
+            time.sleep(DRAIN_S)  # frames still crossing the virtual bus are the run's too
         runner.stop()
         setup.close()
     if runner.error:
@@ -615,12 +627,14 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
             "the plan has operator steps and nobody to answer them: "
             "use --yes or --steps FILE for an unattended run"
         )
+    scenario_path = out / "scenario.toml"
+    if plan.scenario is not None and mode != "live":
+        # the emulated board as a file: `bench emulate DIR/scenario.toml` replays it
+        scenario_path.write_text(plan.scenario_toml(), encoding="utf-8")
     setup = None
     if mode == "live":
         setup = open_live(opts.live_args)  # type: ignore[arg-type]
     elif mode == "realtime":
-        scenario_path = out / "scenario.toml"
-        scenario_path.write_text(plan.scenario_toml(), encoding="utf-8")
         setup = open_emulator(scenario_path, speed=opts.speed)
     started = _now()
     t0 = time.monotonic()

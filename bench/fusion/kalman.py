@@ -21,6 +21,10 @@ import math
 
 ACCEL0_MPS2 = 1.0
 """Initial acceleration uncertainty (1 sigma): about the largest a train pulls or brakes at."""
+MANEUVER_SIGMA = 4.0
+MANEUVER_FRAMES = 2
+"""That many speed innovations in a row beyond MANEUVER_SIGMA standard deviations, all of one
+sign, mean the acceleration has changed: its uncertainty is reset to ACCEL0_MPS2."""
 
 
 class SpeedKalman:
@@ -33,7 +37,8 @@ class SpeedKalman:
         self.acc = 0.0
         self.cov = (self.r2, 0.0, ACCEL0_MPS2 * ACCEL0_MPS2)  # P: vv, va, aa
         self._fixed_dt: float | None = None  # dt for which cov is a fixed point...
-        self._gain = (0.0, 0.0)  # ...and the gain (kv, ka) every such step uses
+        self._gain = (0.0, 0.0, 1.0)  # ...and the gain (kv, ka) and innovation variance
+        self._streak = (0, False)  # innovations outside the gate in a row, and their sign
 
     @property
     def accel_sigma(self) -> float:
@@ -46,10 +51,18 @@ class SpeedKalman:
         and update. Returns the acceleration estimate and its variance after each one."""
         q, r2 = self.q, self.r2
         a0 = ACCEL0_MPS2 * ACCEL0_MPS2
+        gate = MANEUVER_SIGMA * MANEUVER_SIGMA
+
+        def predict(vv: float, va: float, aa: float, h: float) -> tuple[float, float, float]:
+            # P' = F P F^T + Q, F = [[1, dt], [0, 1]], Q from white jerk of density q
+            s2 = va + h * aa
+            return vv + h * va + h * s2 + q * h * h * h / 3.0, s2 + q * h * h / 2.0, aa + q * h
+
         speed, acc = self.speed, self.acc
         vv, va, aa = self.cov
         fixed = self._fixed_dt
-        kv, ka = self._gain
+        kv, ka, s = self._gain
+        streak, up = self._streak
         acc_out: list[float] = []
         var_out: list[float] = []
         for h, zk, rk in zip(dt, z, restart, strict=True):
@@ -57,21 +70,32 @@ class SpeedKalman:
                 speed, acc = zk, 0.0
                 vv, va, aa = r2, 0.0, a0
                 fixed = None
+                streak = 0
             else:
-                if fixed != h:
-                    # predict: P' = F P F^T + Q, F = [[1, dt], [0, 1]], Q from white jerk
-                    s2 = va + h * aa
-                    pvv = vv + h * va + h * s2 + q * h * h * h / 3.0
-                    pva = s2 + q * h * h / 2.0
-                    paa = aa + q * h
+                speed = speed + h * acc
+                innov = zk - speed
+                refresh = fixed != h
+                if refresh:
+                    pvv, pva, paa = predict(vv, va, aa, h)
                     s = pvv + r2
+                # manoeuvre: the acceleration changed (a step is an infinite jerk the model
+                # calls impossible): start its estimate afresh instead of lagging for seconds
+                if innov * innov > gate * s:
+                    streak = streak + 1 if (innov > 0.0) == up or streak == 0 else 1
+                    up = innov > 0.0
+                else:
+                    streak = 0
+                if streak >= MANEUVER_FRAMES:
+                    streak = 0
+                    pvv, pva, paa = predict(r2, 0.0, a0, h)
+                    s = pvv + r2
+                    refresh, fixed = True, None
+                if refresh:
                     kv, ka = pvv / s, pva / s
                     new = (pvv - kv * pvv, pva - kv * pva, paa - ka * pva)  # P -= K H P
                     if new == (vv, va, aa):
                         fixed = h
                     vv, va, aa = new
-                speed = speed + h * acc
-                innov = zk - speed
                 speed = speed + kv * innov
                 acc = acc + ka * innov
             acc_out.append(acc)
@@ -79,5 +103,6 @@ class SpeedKalman:
         self.speed, self.acc = speed, acc
         self.cov = (vv, va, aa)
         self._fixed_dt = fixed
-        self._gain = (kv, ka)
+        self._gain = (kv, ka, s)
+        self._streak = (streak, up)
         return acc_out, var_out

@@ -48,6 +48,17 @@ OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04
 OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT = 0x06, 0x07, 0x08, 0x09
 OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x0B, 0x0C, 0x0F
 _FOOTER_LEN = 1 + 8 + 20
+_OP_NAMES = {
+    OP_HEADER: "Header",
+    OP_SCHEMA: "Schema",
+    OP_CHANNEL: "Channel",
+    OP_MESSAGE: "Message",
+    OP_CHUNK: "Chunk",
+    OP_MESSAGE_INDEX: "MessageIndex",
+    OP_ATTACHMENT: "Attachment",
+    OP_METADATA: "Metadata",
+    OP_DATA_END: "DataEnd",
+}
 
 
 class McapReadError(BenchError):
@@ -246,6 +257,7 @@ class McapLog:
         u_bq = struct.Struct("<BQ").unpack_from
         last_chunk: ChunkInfo | None = None
         reason = ""
+        cut_op = 0
         while True:
             if pos >= size:
                 reason = "file ends without a summary (writer did not finish)"
@@ -256,7 +268,9 @@ class McapLog:
             op, length = u_bq(mm, pos)
             end = pos + 9 + length
             if end > size:
-                reason = f"file ends inside a record (opcode 0x{op:02X}, {length} bytes)"
+                name = _OP_NAMES.get(op, f"opcode 0x{op:02X}")
+                reason = f"file ends inside a {name} record of {length} bytes"
+                cut_op = op
                 break
             if op == 0 or OP_DATA_END < op < 0x80:
                 reason = f"unreadable record (opcode 0x{op:02X}) at byte {pos}"
@@ -299,7 +313,10 @@ class McapLog:
             self.scan_end = pos
         # not finished: everything from pos on is lost
         self.lost_bytes = size - self.scan_end
-        est = self._loss_estimate(self.lost_bytes)
+        if cut_op == OP_MESSAGE_INDEX:  # the last chunk is whole: only its index is cut
+            est = " (only the last chunk's message index: no messages lost)"
+        else:
+            est = self._loss_estimate(self.lost_bytes)
         self.truncation = (
             f"{self.path}: unfinished or truncated MCAP file ({reason}); recovered "
             f"{len(self.chunks)} complete chunk(s), lost about {self.lost_bytes} bytes at the "
@@ -308,18 +325,27 @@ class McapLog:
         self.warnings.append(self.truncation)
 
     def _loss_estimate(self, lost: int) -> str:
-        """'(~N frames, ~S s)' from the average compressed density of the complete chunks."""
+        """'(~N frames, ~S s)': for a chunk cut short, from its own header (uncompressed
+        size, time span) scaled by the complete chunks' frames per byte; otherwise from the
+        complete chunks' average compressed density."""
         if lost <= 0 or not self.chunks:
             return ""
         fid = self.channel_id(S.FRAME_TOPIC)
-        comp = sum(c.data_len for c in self.chunks)
-        frames = sum(c.index.get(fid, (0, 0))[1] // 16 for c in self.chunks if fid is not None)
-        span = (self.chunks[-1].end_time - self.chunks[0].start_time) / 1e9
-        if comp <= 0 or frames <= 0:
+        indexed = [c for c in self.chunks if c.indexed]
+        frames = sum(c.index.get(fid, (0, 0))[1] // 16 for c in indexed) if fid else 0
+        if frames <= 0:
             return ""
-        per_byte = frames / comp
-        secs = f", ~{lost * span / comp:.1f} s" if span > 0 else ""
-        return f" (~{int(lost * per_byte)} frames{secs})"
+        head = self.scan_end
+        op = self._mm[head] if head < self.size else 0
+        if op == OP_CHUNK and head + 9 + 24 <= self.size:
+            t0, t1, usize = struct.unpack_from("<QQQ", self._mm, head + 9)
+            per_byte = frames / max(1, sum(c.uncompressed_size for c in indexed))
+            span = f", {(t1 - t0) / 1e9:.1f} s" if t1 >= t0 else ""
+            return f" (the last chunk, cut short: ~{int(usize * per_byte)} frames{span})"
+        comp = sum(c.data_len for c in indexed)
+        span_s = (self.chunks[-1].end_time - self.chunks[0].start_time) / 1e9
+        secs = f", ~{lost * span_s / comp:.1f} s" if span_s > 0 and comp else ""
+        return f" (~{int(lost * frames / max(1, comp))} frames{secs})"
 
     def _schema(self, p: int) -> None:
         (sid,) = struct.unpack_from("<H", self._mm, p)
@@ -441,13 +467,18 @@ class McapLog:
     # -- frames ----------------------------------------------------------------------------
     def frame_records(self, content: ChunkContent) -> np.ndarray:
         """The chunk's raw-frame records (schemas.FRAME_RECORD_DTYPE), validated."""
+        return self._frame_records(content)[0]
+
+    def _frame_records(self, content: ChunkContent) -> tuple[np.ndarray, np.ndarray]:
+        """Validated raw-frame records of a chunk and their offsets in it."""
         fid = self.channel_id(S.FRAME_TOPIC)
         offs = content.offsets.get(fid) if fid is not None else None
+        none = np.zeros(0, dtype=S.FRAME_RECORD_DTYPE), np.zeros(0, dtype=np.int64)
         if offs is None or len(offs) == 0:
-            return np.zeros(0, dtype=S.FRAME_RECORD_DTYPE)
+            return none
         if offs.max() + S.FRAME_RECORD_DTYPE.itemsize > len(content.buf):
             self._bad(content.info, "frame message overruns the chunk")
-            return np.zeros(0, dtype=S.FRAME_RECORD_DTYPE)
+            return none
         recs = _gather(content.buf, offs, S.FRAME_RECORD_DTYPE)
         p = recs["payload"]
         good = (recs["opcode"] == S.MESSAGE_OPCODE) & (recs["length"] == S.FRAME_RECORD_LENGTH)
@@ -462,16 +493,31 @@ class McapLog:
             )
             self.warnings.append(msg)
             log.warning("%s", msg)
-            recs = recs[good]
-        return recs
+            recs, offs = recs[good], offs[good]
+        return recs, offs
 
-    def iter_batches(self, max_frames: int = 65536) -> Iterator[tuple[SourceBatch, int]]:
-        """SourceBatches in arrival order (frames, link errors, recorded notices), chunks
-        merged up to ``max_frames`` frames; with each, the file offset reached."""
+    def _wanted(self) -> tuple[int | None, int | None, set[int]]:
+        """Channel ids of link errors and notices, and every channel a replay reads."""
         fid = self.channel_id(S.FRAME_TOPIC)
         lid = self.channel_id(S.LINK_ERROR_TOPIC)
         nid = self.channel_id(S.NOTICE_TOPIC)
-        wanted = {c for c in (fid, lid, nid) if c is not None}
+        return lid, nid, {c for c in (fid, lid, nid) if c is not None}
+
+    def iter_batches(
+        self, max_frames: int = 65536, *, recorded: bool = False
+    ) -> Iterator[tuple[SourceBatch, int]]:
+        """SourceBatches in arrival order (frames, link errors, recorded notices); with each,
+        the file offset reached.
+
+        Default: chunks merged into batches of up to ``max_frames`` frames (fast; the
+        pipeline's output does not depend on batching). ``recorded=True``: the live run's
+        own batches, from the batch-start marks (slower, for forensic exactness); a file
+        without marks (emulator output) falls back to ``max_frames`` batches.
+        """
+        if recorded:
+            yield from self._iter_recorded(max_frames)
+            return
+        lid, nid, wanted = self._wanted()
         parts: list[np.ndarray] = []
         errors: list[LinkError] = []
         notices: list[SourceNotice] = []
@@ -479,11 +525,7 @@ class McapLog:
         reached = 0
         for content in self.iter_chunks(wanted):
             reached = content.info.end
-            recs = (
-                self.frame_records(content)
-                if fid is not None
-                else np.zeros(0, S.FRAME_RECORD_DTYPE)
-            )
+            recs, _ = self._frame_records(content)
             if len(recs):
                 parts.append(frames_from_records(recs))
                 pending += len(recs)
@@ -500,6 +542,53 @@ class McapLog:
         if parts or errors or notices:
             frames = np.concatenate(parts) if parts else empty_frames()
             yield SourceBatch(frames, errors, notices), reached
+
+    def _iter_recorded(self, max_frames: int) -> Iterator[tuple[SourceBatch, int]]:
+        """The live batches: a batch starts at each frame marked FLAG_BATCH_START; a link
+        error or notice belongs to the batch whose frames precede it in the chunk."""
+        lid, nid, wanted = self._wanted()
+        parts: list[np.ndarray] = []
+        errors: list[LinkError] = []
+        notices: list[SourceNotice] = []
+        pending = 0
+        marked = False
+        reached = 0
+        for content in self.iter_chunks(wanted):
+            recs, foffs = self._frame_records(content)
+            starts = np.flatnonzero(recs["payload"]["flags"] & S.FLAG_BATCH_START)
+            marked = marked or len(starts) > 0
+            bounds = foffs[starts]
+            frames = frames_from_records(recs)
+            extras: list[tuple[int, LinkError | SourceNotice]] = []
+            for cid, conv in ((lid, link_error_from_json), (nid, notice_from_json)):
+                if cid is not None:
+                    offs = content.offsets.get(cid, np.zeros(0, np.int64)).tolist()
+                    extras += zip(offs, map(conv, content.payloads(cid)), strict=True)
+            extras.sort(key=lambda x: x[0])
+            by_seg: dict[int, list[LinkError | SourceNotice]] = {}
+            segs = np.searchsorted(bounds, [o for o, _ in extras], side="right").tolist()
+            for (_, item), seg in zip(extras, segs, strict=True):
+                by_seg.setdefault(seg, []).append(item)
+            cuts = [0, *starts.tolist(), len(frames)]
+            for k in range(len(cuts) - 1):
+                if k > 0 and (parts or errors or notices):
+                    yield SourceBatch(_cat(parts), errors, notices), reached
+                    parts, errors, notices, pending = [], [], [], 0
+                piece = frames[cuts[k] : cuts[k + 1]]
+                if len(piece):
+                    parts.append(piece)
+                    pending += len(piece)
+                for item in by_seg.get(k, ()):
+                    if isinstance(item, LinkError):
+                        errors.append(item)
+                    else:
+                        notices.append(item)
+                if not marked and pending >= max_frames:
+                    yield SourceBatch(_cat(parts), errors, notices), content.info.end
+                    parts, errors, notices, pending = [], [], [], 0
+            reached = content.info.end
+        if parts or errors or notices:
+            yield SourceBatch(_cat(parts), errors, notices), reached
 
     def read_frames(self) -> tuple[np.ndarray, list[LinkError], list[SourceNotice]]:
         frames, errors, notices = [], [], []
@@ -625,9 +714,15 @@ def frames_from_records(recs: np.ndarray) -> np.ndarray:
     out["t"] = p["t"]
     out["id"] = p["id"]
     out["dlc"] = np.minimum(p["dlc"], 255)
-    out["flags"] = p["flags"]
+    out["flags"] = p["flags"] & 0xFF  # above bit 7: bench marks (FLAG_BATCH_START)
     out["data"] = p["data"]
     return out
+
+
+def _cat(parts: list[np.ndarray]) -> np.ndarray:
+    if not parts:
+        return empty_frames()
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def _num(v: Any) -> float:

@@ -76,6 +76,10 @@ FRAME_PB_CONST = {
     "len_data": 8,
 }
 
+FLAG_BATCH_START = 0x100
+"""Bit 8 of the stored ``flags`` (above protocol.records' FLAG_* byte): this frame opened a
+source batch of the live run (one pipeline step). Readers strip it from FRAME_DTYPE flags."""
+
 MESSAGE_OPCODE = 0x05
 MESSAGE_HEADER = [
     ("opcode", "u1"),
@@ -248,14 +252,12 @@ SPEED_COLUMNS = columns_for(SPEED_DTYPE)
 
 
 def _float_tokens(values: np.ndarray) -> list[str]:
-    out = []
-    for v in values.astype(np.float64).tolist():
-        if v != v:
-            out.append("null")
-        elif v in (float("inf"), float("-inf")):
-            out.append("1e999" if v > 0 else "-1e999")
-        else:
-            out.append(repr(v))
+    """repr() of each float (C loop), then the few non-finite ones patched."""
+    vals = np.asarray(values, dtype=np.float64)
+    out = list(map(repr, vals.tolist()))
+    for i in np.flatnonzero(~np.isfinite(vals)).tolist():
+        v = float(vals[i])
+        out[i] = "null" if v != v else ("1e999" if v > 0 else "-1e999")
     return out
 
 
@@ -266,7 +268,7 @@ def tokens(col: Column, rows: np.ndarray) -> list[str]:
         return _float_tokens(values)
     if col.kind == "bool":
         return ["true" if v else "false" for v in values.tolist()]
-    return [str(v) for v in values.astype(np.int64).tolist()]
+    return list(map(str, values.astype(np.int64).tolist()))
 
 
 def encode_rows(

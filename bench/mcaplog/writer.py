@@ -60,6 +60,7 @@ from bench.events import EventKind, describe, make_events, severity
 from bench.mcaplog import schemas as S
 from bench.pipeline import StepOutput
 from bench.stats import Stats
+from devices.base import SourceBatch
 from protocol.batch import decode_batch
 from protocol.frames import FRAME_DTYPE, frames_from_raw
 from protocol.layout import DEFAULT_BASE, SPEED_REF_ID, Outcome
@@ -463,7 +464,11 @@ class MessageEncoder:
 
     # -- frames ----------------------------------------------------------------------------
     def frames_records(
-        self, frames: np.ndarray, outcome: np.ndarray | None, fallback_ns: int
+        self,
+        frames: np.ndarray,
+        outcome: np.ndarray | None,
+        fallback_ns: int,
+        starts: Sequence[int] | np.ndarray = (),
     ) -> np.ndarray:
         n = len(frames)
         rec = np.zeros(n, dtype=S.FRAME_RECORD_DTYPE)
@@ -488,18 +493,25 @@ class MessageEncoder:
         p["id"] = ids
         p["dlc"] = frames["dlc"]
         p["flags"] = frames["flags"]
+        if len(starts):
+            p["flags"][np.asarray(starts, dtype=np.int64)] |= S.FLAG_BATCH_START
         p["outcome"] = np.asarray(outcome, dtype=np.uint8) & 0x7F
         p["uart"] = (frames["flags"] & FLAG_UART) != 0
         p["data"] = frames["data"]
         return rec
 
     def write_frames(
-        self, frames: np.ndarray, outcome: np.ndarray | None, fallback_ns: int
+        self,
+        frames: np.ndarray,
+        outcome: np.ndarray | None,
+        fallback_ns: int,
+        starts: Sequence[int] | np.ndarray = (),
     ) -> None:
+        """Raw frames; ``starts``: indices of frames that opened a source batch (so a replay
+        can reproduce the live batching exactly, see reader.iter_batches)."""
         if len(frames):
-            self.mf.add_fixed_records(
-                self.cid[S.FRAME_TOPIC], self.frames_records(frames, outcome, fallback_ns)
-            )
+            recs = self.frames_records(frames, outcome, fallback_ns, starts)
+            self.mf.add_fixed_records(self.cid[S.FRAME_TOPIC], recs)
             self.frames += len(frames)
 
     # -- JSON topics -----------------------------------------------------------------------
@@ -654,6 +666,44 @@ class MessageEncoder:
             self._json(S.TRUTH_TOPIC, t, S.encode_rows(rows, columns), fallback_ns)
 
 
+_MAX_GROUP = 512
+"""Most queued steps the writer thread merges into one encoding pass."""
+
+
+def _outcome(step: StepOutput, base_id: int) -> np.ndarray:
+    if len(step.outcome) == len(step.frames):
+        return step.outcome
+    return decode_batch(step.frames, base_id).outcome
+
+
+def _merge_steps(
+    items: list[tuple[StepOutput, int]], base_id: int
+) -> tuple[StepOutput, int, np.ndarray]:
+    """Consecutive steps as one (arrays concatenated in order), the first step's enqueue
+    time, and the index of each step's first frame (its source batch start)."""
+    steps = [s for s, _ in items]
+    sizes = np.array([len(s.frames) for s in steps], dtype=np.int64)
+    starts = (np.cumsum(sizes) - sizes)[sizes > 0]
+    if len(steps) == 1:
+        return steps[0], items[0][1], starts
+    link_errors = [e for s in steps if s.batch is not None for e in s.batch.link_errors]
+    notices = [n for s in steps if s.batch is not None for n in s.batch.notices]
+    cat = lambda name: np.concatenate([getattr(s, name) for s in steps])  # noqa: E731
+    frames = cat("frames")
+    merged = StepOutput(
+        frames=frames,
+        outcome=np.concatenate([_outcome(s, base_id) for s in steps]),
+        seq0=steps[0].seq0,
+        samples=cat("samples"),
+        results=cat("results"),
+        events=cat("events"),
+        status=cat("status"),
+        speed=cat("speed"),
+        batch=SourceBatch(frames, link_errors, notices),
+    )
+    return merged, items[0][1], starts
+
+
 def _obj(*fields: tuple[str, str]) -> bytes:
     """A JSON object from (name, already encoded JSON token) pairs."""
     return ("{" + ",".join(f'"{k}":{v}' for k, v in fields) + "}").encode()
@@ -741,6 +791,8 @@ class McapSink:
         self._next_health: float | None = None
         self._last_t = math.nan
         self._chunk_opened: float | None = None
+        # a merged group stays well inside one chunk (~300 bytes per frame with its results)
+        self._group_frames = max(16, chunk_size // 300)
         self._file: McapFile | None = None
         self._enc: MessageEncoder | None = None
         try:
@@ -850,16 +902,25 @@ class McapSink:
             if self._chunk_opened is not None:
                 timeout = max(0.0, self._chunk_opened + self.flush_interval_s - time.monotonic())
             try:
-                item = self._queue.get(timeout=timeout)
+                items = [self._queue.get(timeout=timeout)]
             except queue.Empty:
-                item = None
-            if item is _STOP:
-                break
-            if item is not None:
+                items = []
+            # under load, take everything already queued and encode it as one group:
+            # the per-step cost is paid once per group, so the writer catches up
+            while items and items[-1] is not _STOP and len(items) < _MAX_GROUP:
                 try:
-                    self._handle(item)
-                except Exception as exc:
-                    self._fail(exc)
+                    items.append(self._queue.get_nowait())
+                except queue.Empty:
+                    break
+            stop = bool(items) and items[-1] is _STOP
+            if stop:
+                items.pop()
+            try:
+                self._handle_items(items)
+            except Exception as exc:
+                self._fail(exc)
+            if stop:
+                break
             if (
                 self._chunk_opened is not None
                 and time.monotonic() - self._chunk_opened >= self.flush_interval_s
@@ -867,29 +928,64 @@ class McapSink:
                 self._flush()
         self._finish()
 
-    def _handle(self, item: Any) -> None:
-        if item[0] == "mark":
-            _, t, text, wall = item
-            if self._enc is None:
-                return
-            self._enc.write_events(make_events(EventKind.MARK, t), wall, name="operator", text=text)
-            self._opened()
-            return
-        step, wall = item
-        step: StepOutput  # type: ignore[no-redef]
+    def _handle_items(self, items: list[Any]) -> None:
+        """Marks in order; each run of consecutive steps merged (see _handle_run)."""
+        run: list[tuple[StepOutput, int]] = []
+        for item in items:
+            if item[0] == "mark":
+                self._handle_run(run)
+                run = []
+                _, t, text, wall = item
+                if self._enc is not None:
+                    marks = make_events(EventKind.MARK, t)
+                    try:
+                        self._enc.write_events(marks, wall, name="operator", text=text)
+                    except Exception as exc:
+                        self._fail(exc)
+                    self._opened()
+            else:
+                run.append(item)
+        self._handle_run(run)
+
+    def _handle_run(self, run: list[tuple[StepOutput, int]]) -> None:
+        """Consecutive steps, merged into as few encoding passes as the ~1 Hz health
+        snapshots allow (a snapshot must see the counters as of its own step)."""
+        start = 0
+        frames = 0
+        last_t = self._last_t
+        for i, (step, wall) in enumerate(run):
+            t = step.frames["t"]
+            frames += len(t)
+            finite = t[np.isfinite(t)] if len(t) else t
+            if len(finite):
+                last_t = float(finite[-1])
+            clock = last_t if math.isfinite(last_t) else wall / 1e9
+            if len(t) and self._next_health is None:
+                self._next_health = clock + self.health_interval_s
+            due = len(t) and self._next_health is not None and clock >= self._next_health
+            if due or frames >= self._group_frames or i == len(run) - 1:
+                group = run[start : i + 1]
+                try:
+                    self._handle(*_merge_steps(group, self.config.base_id))
+                except Exception as exc:  # the file failed; the rest is counted as lost
+                    self._fail(exc)
+                start = i + 1
+                frames = 0
+
+    def _handle(self, step: StepOutput, wall: int, starts: np.ndarray) -> None:
         n = len(step.frames)
         self._account(step)
         if self._enc is None:
             self.frames_lost += n
             return
         enc = self._enc
+        self._frames_pending += n  # counted before writing: a failure below moves them to lost
         if self.dropped > self._dropped_reported:
             delta = self.dropped - self._dropped_reported
             self._dropped_reported = self.dropped
             t = float(step.frames["t"][0]) if n else self._last_t
             enc.write_events(make_events(EventKind.DROPPED, t, value=delta), wall, name="logger")
-        enc.write_frames(step.frames, step.outcome, wall)
-        self._frames_pending += n
+        enc.write_frames(step.frames, step.outcome, wall, starts)
         if step.batch is not None:
             enc.write_link_errors(step.batch.link_errors, wall)
             enc.write_notices(step.batch.notices, wall)

@@ -59,12 +59,12 @@ class BenchApp(App[int]):
         Binding("q", "quit", "Quit"),
         Binding("ctrl+c", "quit", "Quit", show=False, priority=True),
         Binding("p", "pause_display", "Pause display"),
-        Binding("r", "record", "Rec on/off"),
+        Binding("r", "record", "Rec"),
         Binding("m", "mark", "Mark"),
         Binding("plus,equals_sign", "tolerance(1)", "Tol+", key_display="+"),
         Binding("minus", "tolerance(-1)", "Tol-", key_display="-"),
-        Binding("w", "window", "Window"),
-        Binding("space", "play_pause", "Play/pause"),
+        Binding("w", "window", "Window", show=False),
+        Binding("space", "play_pause", "Play", key_display="spc"),
         Binding("s", "speed", "Speed"),
         Binding("n", "step", "Step"),
         Binding("j", "next_failure", "Next fail"),
@@ -101,10 +101,11 @@ class BenchApp(App[int]):
             with Vertical(id="right"):
                 yield BoardPanel(id="board", classes="panel")
                 yield RecordingPanel(id="recording", classes="panel")
-        yield Footer()
+        yield Footer(compact=True)
 
     def on_mount(self) -> None:
         self.query_one("#plot").border_title = self._plot_title()
+        self.query_one("#plot").border_subtitle = "w: window"
         self._update_status_bar()
         if self.poll_hz > 0:
             self.set_interval(1.0 / self.poll_hz, self.poll)
@@ -115,8 +116,11 @@ class BenchApp(App[int]):
         """Timer tick: start a snapshot worker unless one is still in flight."""
         if self._polling or self.quitting:
             return
+        try:
+            size = self.query_one(GradientPlot).content_size
+        except NoMatches:  # the screen is being torn down
+            return
         self._polling = True
-        size = self.query_one(GradientPlot).content_size
         self._take_snapshot(size.width, size.height)
 
     @work(thread=True, exclusive=False, group="poll", exit_on_error=False)

@@ -82,6 +82,7 @@ class ReplaySource(LiveSource):
         step_s: float = 1.0 / 200,
         batch_frames: int = 2048,
         max_ahead: int = 16384,
+        max_ahead_batches: int = 256,
         seek_chunk: int = 64,
         clock: Callable[[], float] = time.monotonic,
         description: str | None = None,
@@ -95,6 +96,7 @@ class ReplaySource(LiveSource):
         self._paused = paused
         self.step_s = step_s
         self.max_ahead = max(1, max_ahead)
+        self.max_ahead_batches = max(1, max_ahead_batches)
         self.seek_chunk = max(1, seek_chunk)
         # the batch being handed out, and how far into it we are
         self._pending: SourceBatch | None = None
@@ -104,6 +106,8 @@ class ReplaySource(LiveSource):
         self._closed = False
         self.emitted = 0  # frames handed to the runner
         self.consumed = 0  # frames the pipeline has processed (from ReplayTap)
+        self.batches_emitted = 0
+        self.batches_consumed = 0
         self._log_t = math.nan  # log time of the last frame handed out
         self._log_t0 = math.nan  # log time of the first frame
         self._anchor: tuple[float, float] | None = None  # (clock, log time) pacing reference
@@ -202,11 +206,11 @@ class ReplaySource(LiveSource):
             )
 
     # -- feedback (processing thread, via ReplayTap) --------------------------------------
-    def consumed_to(self, frames: int) -> None:
+    def consumed_to(self, frames: int, batches: int) -> None:
         with self._cond:
-            if frames > self.consumed:
-                self.consumed = frames
-                self._cond.notify_all()
+            self.batches_consumed = max(self.batches_consumed, batches)
+            self.consumed = max(self.consumed, frames)
+            self._cond.notify_all()
 
     def failure_found(self, failure: Failure) -> None:
         with self._cond:
@@ -280,6 +284,8 @@ class ReplaySource(LiveSource):
             return SourceBatch(), 0.05
         frames = p.frames[self._pos :]
         ahead = self.emitted - self.consumed
+        if self.batches_emitted - self.batches_consumed >= self.max_ahead_batches:
+            return SourceBatch(), 0.05  # the runner's queue counts batches: do not fill it
         if len(frames) == 0:
             k = 0
         elif self._seeking:
@@ -298,15 +304,15 @@ class ReplaySource(LiveSource):
             if math.isfinite(t_next) and math.isfinite(target):
                 wait = min(0.05, max(0.0005, (t_next - target) / self._speed))
         out = frames[:k]
-        extras = not self._extras_sent and (p.link_errors or p.notices)
-        if k == 0 and not extras and len(frames):
-            return SourceBatch(), wait
-        batch = SourceBatch(out.copy())
-        if not self._extras_sent:
+        batch = SourceBatch(out.copy()) if k else SourceBatch()
+        if not self._extras_sent and (k or len(frames) == 0):
+            # link errors and notices go out with the first frames of their batch
             batch.link_errors, batch.notices = list(p.link_errors), list(p.notices)
             self._extras_sent = True
         self._pos += k
         self.emitted += k
+        if batch:
+            self.batches_emitted += 1
         if k:
             t = out["t"][np.isfinite(out["t"])]
             if len(t):
@@ -357,6 +363,7 @@ class ReplayTap:
     def __init__(self, source: ReplaySource) -> None:
         self.source = source
         self.dropped = 0  # frames the runner dropped: handed out, never processed
+        self.batches = 0
 
     def write(self, step: StepOutput) -> None:
         if len(step.events):
@@ -368,7 +375,8 @@ class ReplayTap:
                     ev = fails[0]
                     self.source.failure_found(Failure(float(ev["t"]), int(ev["n"]), describe(ev)))
         if step.batch is not None:
-            self.source.consumed_to(step.seq0 + len(step.frames) + self.dropped)
+            self.batches += 1
+            self.source.consumed_to(step.seq0 + len(step.frames) + self.dropped, self.batches)
 
     def mark(self, t: float, text: str) -> None:
         pass

@@ -138,6 +138,7 @@ class Session:
     replay: ReplaySource | None = None
     fixed: Snapshot | None = None  # tests: always show this snapshot
     on_stop: list[Callable[[], None]] = field(default_factory=list)
+    _started: bool = False
     _stopped: bool = False
     _stop_lock: threading.Lock = field(default_factory=threading.Lock)
 
@@ -164,7 +165,8 @@ class Session:
         return "replay" if self.replay is not None else "live"
 
     def start(self) -> None:
-        if self.runner is not None:
+        if self.runner is not None and not self._started:
+            self._started = True
             self.runner.start()
 
     def snapshot(self, last: int = HISTORY) -> Snapshot:
@@ -206,9 +208,12 @@ class Session:
         if setup is not None and setup.emulator is not None:
             with contextlib.suppress(Exception):
                 setup.emulator.stop()
-        if self.runner is not None:
+        if self.runner is not None and self._started:
             self.runner.stop(timeout)
             self.runner.wait(timeout)
+        else:  # never started: nothing will close the sinks for us
+            with contextlib.suppress(Exception):
+                self.recorder.close()
         if setup is not None:
             with contextlib.suppress(Exception):
                 setup.close()

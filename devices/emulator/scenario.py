@@ -290,7 +290,7 @@ def _parse_train(file: str, items: list[Any]) -> tuple[TrainPhase, ...]:
     return tuple(out)
 
 
-def _parse_channels(file: str, items: list[Any], rate: int) -> tuple[ChannelModel, ...]:
+def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
     if not items:
         return _nominal_channels()
     if len(items) != 3:
@@ -490,7 +490,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         description=top.text("description", ""),
         track=_parse_track(source, _array(top, "track")),
         train=_parse_train(source, _array(top, "train")),
-        channels=_parse_channels(source, _array(top, "channels"), rate),  # type: ignore[arg-type]
+        channels=_parse_channels(source, _array(top, "channels")),  # type: ignore[arg-type]
         board=_parse_board(source, top.raw("board", {}), rate),
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         faults=tuple(

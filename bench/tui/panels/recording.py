@@ -35,17 +35,20 @@ def _first(status: dict[str, Any], keys: tuple[str, ...]) -> Any:
 
 
 def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) -> Table:
-    table = Table(box=None, pad_edge=False, padding=(0, 1), show_header=False, show_edge=False)
-    table.add_column(style="bold", no_wrap=True, min_width=5)
+    table = Table(box=None, pad_edge=False, padding=0, show_header=False, show_edge=False)
     table.add_column(overflow="fold", ratio=1)
     if status is None:
-        table.add_row(Text("○ off", style="dim"), "not recording: press r to start")
+        table.add_row(Text("○ not recording: press r to start", style="dim"))
         if last:
-            table.add_row("last", str(last.get("path", MISSING)))
-            table.add_row("", _figures(last))
+            table.add_row(Text("last file:", style="bold"))
+            table.add_row(str(last.get("path", MISSING)))
+            table.add_row(_figures(last))
         return table
-    table.add_row(Text("● REC", style="bold red"), str(status.get("path", MISSING)))
-    table.add_row("", _figures(status))
+    head = Text("● REC", style="bold red")
+    head.append("  " + duration_text(_first(status, _DURATION_KEYS)), style="bold")
+    table.add_row(head)
+    table.add_row(str(status.get("path", MISSING)))
+    table.add_row(_figures(status, duration=False))
     dropped = status.get("dropped")
     err = status.get("error") or status.get("errors")
     if dropped or err:
@@ -54,18 +57,19 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
             line.append(f"dropped {dropped}  ", style="bold red")
         if err:
             line.append(str(err), style="bold red")
-        table.add_row("", line)
+        table.add_row(line)
     extra = [f"{k} {v}" for k, v in status.items() if k not in _SHOWN and _is_scalar(v)]
     if extra:
-        table.add_row("", Text("  ".join(extra), style="dim"))
+        table.add_row(Text("  ".join(extra), style="dim"))
     return table
 
 
-def _figures(status: dict[str, Any]) -> str:
+def _figures(status: dict[str, Any], *, duration: bool = True) -> str:
     parts = [size_text(_first(status, _SIZE_KEYS))]
     if "frames" in status:
         parts.append(f"{status['frames']} frames")
-    parts.append(duration_text(_first(status, _DURATION_KEYS)))
+    if duration:
+        parts.append(duration_text(_first(status, _DURATION_KEYS)))
     return "  ".join(parts)
 
 

@@ -1,0 +1,165 @@
+"""`bench accept PLAN --out DIR`: a headless acceptance run with a verdict and a report.
+
+Exit code 0 pass, 1 fail, 2 error (the bench itself failed, or bad input), so CI and an
+overnight script can act on it without parsing anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from rich.console import Console
+from rich.table import Table
+
+from bench.errors import BenchError
+
+if TYPE_CHECKING:
+    from bench.acceptance.runner import Outcome
+
+_STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from devices.cli_args import add_source_arguments
+
+    p = sub.add_parser(
+        "accept",
+        help="acceptance run of a plan: verdict, junit.xml, record.json, report.html, run.mcap",
+        description="Run an acceptance plan (bench/plans or a PLAN.toml) and judge every check. "
+        "A plan with a scenario runs on the emulated board as fast as possible (or --realtime "
+        "through the virtual board); with source options it runs against a real board, with "
+        "operator steps. Exit code 0 pass, 1 fail, 2 error.",
+    )
+    p.add_argument("plan", nargs="?", help="plan file, or the name of a shipped plan")
+    p.add_argument("--list", action="store_true", help="list the shipped plans and exit")
+    p.add_argument("--out", metavar="DIR", help="output folder (created; files are replaced)")
+    p.add_argument("--yes", "-y", action="store_true", help="answer every operator step 'ok'")
+    p.add_argument(
+        "--steps",
+        metavar="FILE",
+        help="answers to the operator steps (TOML [[answers]]: answer, reference_permil, note)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="play the plan's scenario through the in-process virtual board and the live path",
+    )
+    p.add_argument(
+        "--speed",
+        type=float,
+        default=1.0,
+        metavar="X",
+        help="virtual board speed for --realtime (default 1 = real time)",
+    )
+    p.add_argument("--no-plots", action="store_true", help="report.html without PNG plots")
+    p.add_argument("--config", help="calibration config (TOML); default: the plan's board")
+    add_source_arguments(p)
+    p.add_argument(
+        "--emulate",
+        metavar="SCENARIO",
+        help="live run against the virtual board playing SCENARIO (instead of a real board)",
+    )
+    p.set_defaults(func=run)
+
+
+def list_table() -> Table:
+    from bench.acceptance.plan import load_plan, shipped_plans
+
+    table = Table(title="shipped acceptance plans (bench/plans)")
+    table.add_column("plan", style="bold", no_wrap=True)
+    table.add_column("expect", no_wrap=True)
+    table.add_column("runs on")
+    table.add_column("length", justify="right", no_wrap=True)
+    table.add_column("title")
+    for path in shipped_plans():
+        plan = load_plan(path)
+        sc = plan.scenario
+        if plan.steps:
+            runs = f"board, {len(plan.steps)} steps"
+            if sc is not None:
+                runs += " (rehearsal: emulator)"
+        else:
+            runs = "emulator" if sc is not None else "board"
+        if sc is not None:
+            runs += f" {plan.link.upper()} {sc.sample_rate_hz} Hz"
+            length = f"{sc.duration_s:g} s"
+        else:
+            length = "-" if plan.duration_s is None else f"{plan.duration_s:g} s"
+        style = "green" if plan.expect == "pass" else "red"
+        table.add_row(plan.name, f"[{style}]{plan.expect}[/]", runs, length, plan.title)
+    return table
+
+
+def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.plan import load_plan
+    from bench.acceptance.runner import Options, has_live_source, load_answers, run_plan
+
+    console = Console()
+    if args.list:
+        console.print(list_table())
+        return 0
+    if not args.plan:
+        raise BenchError("give a PLAN (file or shipped name), or --list to see the shipped plans")
+    if not args.out:
+        raise BenchError("--out DIR is required: the verdict, report and run.mcap go there")
+    if args.yes and args.steps:
+        raise BenchError("--yes and --steps both answer the operator steps: give one")
+    if args.realtime and has_live_source(args):
+        raise BenchError("--realtime plays the plan's own scenario: drop the source options")
+    if not args.speed > 0:
+        raise BenchError(f"--speed must be > 0, got {args.speed!r}")
+    plan = load_plan(args.plan)
+    answers = load_answers(args.steps) if args.steps else None
+    err = Console(stderr=True)
+    opts = Options(
+        out_dir=Path(args.out),
+        realtime=args.realtime,
+        speed=args.speed,
+        yes=args.yes,
+        answers=answers,
+        config_path=args.config,
+        live_args=args,
+        say=lambda text: err.print(f"bench: {text}", highlight=False),
+        plots=not args.no_plots,
+    )
+    err.print(f"bench: acceptance plan {plan.name}: {plan.title}", highlight=False)
+    outcome = run_plan(plan, opts)
+    print_outcome(outcome, console)
+    if outcome.error:
+        print(f"bench: error: {outcome.error}", file=sys.stderr)
+    return outcome.exit_code
+
+
+def result_table(outcome: Outcome) -> Table:
+    from bench.acceptance.report import format_limits, format_value
+
+    table = Table(title=f"acceptance {outcome.plan.name}")
+    table.add_column("check", style="bold")
+    table.add_column("measured", justify="right", no_wrap=True)
+    table.add_column("limits")
+    table.add_column("verdict", no_wrap=True)
+    for m in outcome.measurements:
+        verdict = f"[{_STYLE[m.verdict]}]{m.verdict.upper()}[/]"
+        if m.expect is not None:
+            verdict += f" [dim](expected {m.expect})[/]"
+        table.add_row(m.name, format_value(m), format_limits(m), verdict)
+    return table
+
+
+def print_outcome(outcome: Outcome, console: Console) -> None:
+    """The table, then one line per check that did not pass: which one and by how much."""
+    console.print(result_table(outcome))
+    for m in outcome.measurements:
+        if m.verdict != "pass":
+            style = _STYLE[m.verdict]
+            console.print(f"[{style}]{m.verdict.upper()}[/] {m.name}: {m.detail}", highlight=False)
+    style = _STYLE[outcome.verdict]
+    console.print(
+        f"[bold {style}]{outcome.verdict.upper()}[/] plan {outcome.plan.name} "
+        f"(plan expects {outcome.plan.expect}) in {outcome.wall_s:.1f} s; report: "
+        f"{outcome.files.get('report', outcome.out_dir / 'report.html')}",
+        highlight=False,
+    )

@@ -1,0 +1,198 @@
+"""The soak: ``python -m benchmarks.soak [--minutes 10] [--no-tui] [--json OUT]``.
+
+The virtual board at 1 kHz x 3 channels on python-can's virtual bus for ``--minutes``,
+with every fault kind of the emulator switched on and off in turn (three times round),
+MCAP logging on and the TUI attached headless (polling and rendering as on a screen).
+
+It passes when, over the whole run:
+
+* frames sent = frames received = frames logged (the finished MCAP read back), nothing
+  dropped by the runner or the logger, the MCAP file complete;
+* resident memory after the warm-up (the UI history ring fills in the first minute at
+  1 kHz) grows by at most ``--mem-bound-mb`` (default 64 MB);
+* no exception anywhere: not in any thread (``threading.excepthook``), not logged at
+  ERROR by any bench module, not in the runner, the logger or the TUI.
+
+It prints the figures as it goes and at the end, writes them as JSON, and exits 1 on a
+failure. ``pytest -m soak`` (or ``BENCH_SOAK=1 pytest tests/test_soak.py``) runs it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import machine_info, rss_mb
+
+UART_ONLY = {"noise", "truncation"}
+"""UART faults act on the UART byte stream only; they are in the scenario (so the schedule
+is complete) but a CAN run cannot show them. The pty fault test covers the UART path."""
+
+
+def fault_schedule(duration_s: float, cycles: int = 3) -> list[dict[str, Any]]:
+    """Every fault kind in turn, ``cycles`` times round; each is on for 60 % of its slot."""
+    from devices.emulator.scenario import FAULT_KINDS, FRAME_KINDS, SIGNAL_KINDS
+
+    kinds = list(FAULT_KINDS)
+    slot = duration_s / (cycles * len(kinds))
+    faults = []
+    for c in range(cycles):
+        for i, kind in enumerate(kinds):
+            start = (c * len(kinds) + i) * slot
+            f: dict[str, Any] = {"kind": kind, "start_s": round(start, 3)}
+            f["end_s"] = round(start + 0.6 * slot, 3)
+            if kind in SIGNAL_KINDS:
+                f["channel"] = 1 + (i + c) % 3
+            elif kind in FRAME_KINDS:
+                f["channel"] = [1, 2, 3, "adc", "bus", "speed", "status"][(i + c) % 7]
+                if kind in ("loss", "duplicate", "reorder"):
+                    f["probability"] = 0.05
+                if kind == "crc":
+                    f["probability"] = 0.3
+            else:
+                f["channel"] = "uart"
+            faults.append(f)
+    return faults
+
+
+class _ErrorLog(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.records: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(f"{record.name}: {record.getMessage()}")
+
+
+def soak(minutes: float, *, tui: bool = True, mem_bound_mb: float = 64.0,
+         mcap: Path | None = None, log: Any = print) -> dict[str, Any]:
+    from benchmarks.live import run_live
+
+    seconds = minutes * 60.0
+    warmup = min(60.0, max(5.0, 0.3 * seconds))
+    faults = fault_schedule(seconds + 2.0)
+    thread_errors: list[str] = []
+    error_log = _ErrorLog()
+    logging.getLogger().addHandler(error_log)
+    old_hook = threading.excepthook
+
+    def hook(args: threading.ExceptHookArgs) -> None:
+        thread_errors.append(f"{args.thread.name if args.thread else '?'}: {args.exc_value!r}")
+        old_hook(args)
+
+    threading.excepthook = hook
+    mem: list[tuple[float, float]] = [(0.0, rss_mb())]
+    t0 = time.monotonic()
+    last_print = [0.0]
+
+    def progress(runner: Any) -> None:
+        el = time.monotonic() - t0
+        mem.append((el, rss_mb()))
+        if el - last_print[0] >= 30.0:
+            last_print[0] = el
+            snap = runner.snapshot(last=1)
+            log(
+                f"  {el:6.0f} s  received {snap.frames_received:>9}  dropped "
+                f"{snap.frames_dropped}  queue {snap.queue_depth:>4}  RSS {mem[-1][1]:6.1f} MB  "
+                f"latency p50/p99 {snap.latency_ms[0]:.2f}/{snap.latency_ms[1]:.2f} ms"
+            )
+
+    log(
+        f"soak: {minutes:g} min at 1 kHz x 3 ch, {len(faults)} fault windows "
+        f"({len({f['kind'] for f in faults})} kinds), MCAP on, TUI {'on' if tui else 'off'}"
+    )
+    try:
+        run = run_live(None, seconds, tui=tui, faults=faults, on_progress=progress,
+                       mcap_path=mcap)
+    finally:
+        threading.excepthook = old_hook
+        logging.getLogger().removeHandler(error_log)
+    mem.append((time.monotonic() - t0, rss_mb()))
+    after = [m for t, m in mem if t >= warmup]
+    base = after[0] if after else mem[-1][1]
+    growth = max(after) - base if after else 0.0
+    checks = {
+        "frames sent = received = logged": run.sent == run.received == run.logged > 0,
+        "nothing dropped": run.dropped == 0 and run.mcap_dropped == 0,
+        "board sent every frame": run.board_errors == 0,
+        "MCAP complete": run.mcap_complete,
+        f"memory growth after warm-up <= {mem_bound_mb:g} MB": growth <= mem_bound_mb,
+        "no exception": not (run.errors or thread_errors or error_log.records),
+        "ran the full time": run.seconds >= seconds and run.rate_achieved > 0,
+    }
+    result = {
+        "minutes": minutes,
+        "tui": tui,
+        "passed": all(checks.values()),
+        "checks": checks,
+        "run": run.as_dict(),
+        "fault_kinds": sorted({f["kind"] for f in faults}),
+        "memory_mb": {
+            "start": mem[0][1],
+            "after_warmup": base,
+            "end": mem[-1][1],
+            "max": max(m for _, m in mem),
+            "growth_after_warmup": growth,
+            "warmup_s": warmup,
+            "timeline": [(round(t, 1), round(m, 1)) for t, m in mem[:: max(1, len(mem) // 60)]],
+        },
+        "exceptions": run.errors + thread_errors + error_log.records,
+        "machine": machine_info(),
+    }
+    return result
+
+
+def report(r: dict[str, Any], log: Any = print) -> None:
+    run, mem = r["run"], r["memory_mb"]
+    log(f"soak {'PASSED' if r['passed'] else 'FAILED'}: {r['minutes']:g} min, TUI {r['tui']}")
+    log(
+        f"  frames sent {run['sent']}  received {run['received']}  logged {run['logged']}  "
+        f"dropped {run['dropped']}+{run['mcap_dropped']}  rate {run['rate_achieved']:.0f}/s"
+    )
+    log(
+        f"  latency p50 {run['p50_ms']:.2f} ms  p99 {run['p99_ms']:.2f} ms  max "
+        f"{run['max_ms']:.1f} ms  over {run['results']} results"
+    )
+    log(
+        f"  memory start {mem['start']:.1f} MB, after {mem['warmup_s']:.0f} s warm-up "
+        f"{mem['after_warmup']:.1f} MB, end {mem['end']:.1f} MB, max {mem['max']:.1f} MB, "
+        f"growth {mem['growth_after_warmup']:+.1f} MB"
+    )
+    st = run.get("stats", {})
+    shown = {k: v for k, v in st.items() if isinstance(v, int) and v}
+    log(f"  bench counted: {shown}")
+    log(f"  TUI snapshots applied: {run['tui_snapshots']}; fault kinds: {', '.join(r['fault_kinds'])}")
+    for name, ok in r["checks"].items():
+        log(f"  [{'x' if ok else ' '}] {name}")
+    for e in r["exceptions"][:20]:
+        log(f"  exception: {e}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.soak", description=__doc__.split("\n\n")[1])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--no-tui", action="store_true", help="without the headless TUI")
+    ap.add_argument("--mem-bound-mb", type=float, default=64.0)
+    ap.add_argument("--mcap", type=Path, help="keep the run's MCAP here")
+    ap.add_argument("--json", metavar="OUT", default=None, help="write the figures as JSON")
+    args = ap.parse_args(argv)
+
+    def log(text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    r = soak(args.minutes, tui=not args.no_tui, mem_bound_mb=args.mem_bound_mb,
+             mcap=args.mcap, log=log)
+    report(r, log)
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=2, default=str) + "\n")
+    return 0 if r["passed"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

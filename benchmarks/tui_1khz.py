@@ -1,0 +1,168 @@
+"""The TUI on a 1 kHz board: frames sent = frames received = frames logged.
+
+``python -m benchmarks.tui_1khz [--seconds 60]`` runs the whole `bench tui --emulate` stack
+headless (App.run_test, 100x30, 4 Hz snapshots, every panel rendered): the virtual board plays
+a 1 kHz x 3 channel scenario (~3060 frames/s with BOARD_STATUS and SPEED_REF) on a private
+python-can virtual channel, a CanBusSource listens, the TUI's session runs the LiveRunner and
+records through its Recorder into an MCAP file, operator marks are pressed on the way, and
+``q`` quits exactly as an operator would (which finishes the MCAP file).
+
+It then prints frames sent (the board's own count), received (the runner's), processed (the
+pipeline's), logged (frames read back from the finished MCAP file), the drop counters and the
+display rate, and exits 1 unless sent = received = processed = logged with nothing dropped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import itertools
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: make the repository importable
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+_ids = itertools.count(1)
+
+
+@dataclass
+class TuiRun:
+    seconds: float
+    sent: int = 0
+    received: int = 0
+    processed: int = 0
+    logged: int = 0
+    runner_dropped: int = 0
+    log_dropped: int = 0
+    board_errors: int = 0
+    mcap_complete: bool = False
+    marks_logged: int = 0
+    snapshots: int = 0
+    elapsed: float = 0.0
+    errors: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return (
+            self.sent > 0
+            and self.sent == self.received == self.processed == self.logged
+            and self.runner_dropped == 0
+            and self.log_dropped == 0
+            and self.board_errors == 0
+            and self.mcap_complete
+            and not self.errors
+        )
+
+    def report(self) -> str:
+        rate = self.sent / self.elapsed if self.elapsed else 0.0
+        lines = [
+            f"TUI on a 1 kHz x 3 ch virtual board, {self.seconds:g} s ({rate:,.0f} frames/s), "
+            "MCAP on, 100x30 headless",
+            f"  frames sent      {self.sent}",
+            f"  frames received  {self.received}",
+            f"  frames processed {self.processed}",
+            f"  frames logged    {self.logged}  (read back from the finished MCAP file)",
+            f"  dropped          runner queue {self.runner_dropped}, log {self.log_dropped}, "
+            f"board send errors {self.board_errors}",
+            f"  MCAP complete    {self.mcap_complete}; operator marks in it: {self.marks_logged}",
+            f"  display          {self.snapshots} snapshots shown "
+            f"({self.snapshots / self.elapsed if self.elapsed else 0:.1f} Hz)",
+        ]
+        lines += [f"  error: {e}" for e in self.errors]
+        lines.append("  PASS: sent = received = logged" if self.ok else "  FAIL")
+        return "\n".join(lines)
+
+
+def run(seconds: float = 60.0, workdir: str | None = None, marks: int = 3) -> TuiRun:
+    import can
+
+    from bench.config import Config
+    from bench.liveopts import LiveSetup, start_recording
+    from bench.mcaplog.reader import McapLog, read_events
+    from bench.tui.app import BenchApp
+    from bench.tui.session import live_session
+    from benchmarks.common import board_scenario
+    from devices.bus import CanBusSource
+    from devices.emulator import scenario_from_dict, simulate, start_virtual_board
+
+    out = TuiRun(seconds)
+    scenario = scenario_from_dict(board_scenario(seconds + 1.0), "tui benchmark")
+    sim = simulate(scenario)
+    config = Config(sample_rate_hz=scenario.sample_rate_hz)
+    channel = f"bench-tui-1khz-{os.getpid()}-{next(_ids)}"
+    bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    source = CanBusSource(bus=bus, owns_bus=True)
+    setup = LiveSetup(source, "virtual board 1 kHz", "tui-1khz")
+    with tempfile.TemporaryDirectory(prefix="bench-tui-", dir=workdir) as tmp:
+        path = Path(tmp) / "tui.mcap"
+        mcap = start_recording(path, setup, config)
+        session = live_session(setup, config, mcap, Path(tmp))
+        app = BenchApp(session, poll_hz=4.0)
+
+        async def drive() -> None:
+            async with app.run_test(size=(100, 30)) as pilot:
+                session.start()
+                player = start_virtual_board(sim, channel)
+                setup.emulator = player
+                t0 = time.perf_counter()
+                end = t0 + seconds
+                mark_at = [t0 + seconds * (i + 1) / (marks + 1) for i in range(marks)]
+                while time.perf_counter() < end and not player.done:
+                    await asyncio.sleep(0.2)
+                    if mark_at and time.perf_counter() >= mark_at[0]:
+                        mark_at.pop(0)
+                        await pilot.press("m")
+                player.stop()
+                out.elapsed = time.perf_counter() - t0
+                out.sent, out.board_errors = player.frames_sent, player.errors
+                runner = session.runner
+                assert runner is not None
+                deadline = time.monotonic() + 30.0
+                while runner.frames_received < out.sent and time.monotonic() < deadline:
+                    await asyncio.sleep(0.05)  # the bus holds what was sent: let it be read
+                out.snapshots = app.snapshots_applied
+                await pilot.press("q")  # the operator's quit: stops the run, finishes the MCAP
+                deadline = time.monotonic() + 60.0
+                while app.is_running and time.monotonic() < deadline:
+                    await asyncio.sleep(0.05)
+                if app.is_running:
+                    out.errors.append("the TUI did not quit within 60 s")
+
+        asyncio.run(drive())
+        session.stop()
+        runner = session.runner
+        assert runner is not None
+        out.received = runner.frames_received
+        out.processed = runner.pipeline.seq
+        out.runner_dropped = runner.frames_dropped
+        out.log_dropped = int(getattr(mcap, "dropped", 0)) + int(getattr(mcap, "frames_lost", 0))
+        if runner.error:
+            out.errors.append(runner.error)
+        if getattr(mcap, "error", None):
+            out.errors.append(f"mcap: {mcap.error}")
+        with McapLog(path) as log:
+            frames, _, _ = log.read_frames()
+            out.logged = len(frames)
+            out.mcap_complete = bool(log.complete)
+        out.marks_logged = sum(
+            1 for e in read_events(path) if "operator mark" in str(e.get("message", e))
+        )
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--seconds", type=float, default=60.0, help="run length (default 60)")
+    args = p.parse_args(argv)
+    result = run(args.seconds)
+    print(result.report())
+    return 0 if result.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

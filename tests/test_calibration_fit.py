@@ -1,0 +1,164 @@
+"""Mounting calibration recovers the as-built angles of an emulated board from noisy runs.
+
+The board is built up to 0.5 deg off nominal, with white noise, vibration and small
+offsets; the truth is the scenario's angle_deg. Each reference mode is tried on the kind
+of recording it is meant for.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bench.calibration import Recording, calibrate, record, steady
+from bench.config import Config
+from bench.errors import BenchError
+from devices.base import SourceBatch
+from devices.emulator import scenario_from_dict, simulate
+
+AS_BUILT = (30.5, -0.35, -29.6)  # deg: up to 0.5 deg off the nominal 30, 0, -30
+OFFSETS = (3e-4, -2e-4, 1e-4)  # m/s^2, about 30 ug: small, as on a calibration sheet
+TOLERANCE_DEG = 0.01
+
+
+def board(noise: float = 0.003) -> list[dict[str, Any]]:
+    return [
+        {
+            "angle_deg": a,
+            "bias_mps2": b,
+            "noise_mps2": noise,
+            "vibration_mps2": 0.02,
+            "vibration_hz": 12.0,
+            "vibration_phase_deg": 50.0 * i,
+        }
+        for i, (a, b) in enumerate(zip(AS_BUILT, OFFSETS, strict=True))
+    ]
+
+
+def recording(scenario: dict[str, Any]) -> Recording:
+    sim = simulate(scenario_from_dict(scenario))
+    return record([SourceBatch(sim.frames)], Config())
+
+
+# The train hops between four 100 m segments at -30..+30 permil and stands 10 s on each.
+HOP = [
+    {"duration_s": 10.0, "accel_mps2": 0.5},
+    {"duration_s": 10.0},
+    {"duration_s": 10.0, "accel_mps2": -0.5},
+    {"duration_s": 10.0},
+]
+TILT_STEPS = {
+    "seed": 31,
+    "duration_s": 130.0,
+    "initial_position_m": 50.0,
+    "vertical_curve_m": 20.0,
+    "track": [{"length_m": 100.0, "gradient_permil": g} for g in (-30.0, -10.0, 10.0, 30.0)],
+    "train": [{"duration_s": 10.0}, *HOP * 3],
+    "channels": board(),
+}
+TABLE = np.array([[1.0, 10.0, -30.0], [41.0, 50.0, -10.0], [81.0, 90.0, 10.0], [121.0, 130.0, 30.0]])
+
+IN_MOTION = {
+    "seed": 32,
+    "duration_s": 250.0,
+    "vertical_curve_m": 120.0,
+    "track": [
+        {"length_m": 800.0, "gradient_permil": 0.0},
+        {"length_m": 1200.0, "gradient_permil": 12.0},
+        {"length_m": 600.0, "gradient_permil": 25.0},
+        {"length_m": 800.0, "gradient_permil": 0.0},
+        {"length_m": 1200.0, "gradient_permil": -15.0},
+        {"length_m": 5000.0, "gradient_permil": 5.0},
+    ],
+    "train": [
+        {"duration_s": 20.0, "accel_mps2": 0.6},
+        {"duration_s": 5.0},
+        {"duration_s": 20.0, "accel_mps2": -0.6},
+        {"duration_s": 5.0},
+    ]
+    * 5,
+    "channels": board(),
+    "odometer": {"time0_ticks": 31000, "drift_ppm": 80.0},
+}
+
+
+def assert_recovered(fit: Any) -> None:
+    err = fit.angles_deg - np.array(AS_BUILT)
+    print(fit.report(), "\nerror deg:", err)
+    assert np.all(np.abs(err) <= TOLERANCE_DEG)
+    # the stated uncertainty is statistical; unmodelled 30 ug offsets add up to 0.002 deg
+    assert np.all(fit.angle_sigma_deg < 0.005)
+    assert np.all(np.abs(err) < 4 * fit.angle_sigma_deg + 0.0025)
+    assert fit.residual_rms_mps2 < 0.002
+    assert [c.angle_deg for c in fit.config.channels] == pytest.approx(list(fit.angles_deg))
+
+
+def test_tilt_table_steps_give_the_as_built_angles() -> None:
+    fit = calibrate(recording(TILT_STEPS), Config(), "table", TABLE)
+    assert_recovered(fit)
+    assert fit.blocks >= 4 * 30
+
+
+def test_motion_against_speed_ref_gives_the_as_built_angles() -> None:
+    rec = recording(IN_MOTION)
+    fit = calibrate(rec, Config(), "speed")
+    assert_recovered(fit)
+    # blocks right after a change of acceleration (a_ref still settling) are left out
+    used = steady(rec)
+    assert 0.3 < used.mean() < 0.9
+
+
+def test_level_standstill_gives_the_angles_but_no_offsets() -> None:
+    scenario = {"seed": 33, "duration_s": 20.0, "channels": board()}
+    fit = calibrate(recording(scenario), Config(), "level")
+    assert_recovered(fit)
+    assert np.isnan(fit.offset_sigma_mps2).all()
+    assert [c.offset for c in fit.config.channels] == [0.0, 0.0, 0.0]
+
+
+def test_large_tilt_steps_make_the_offsets_of_pitched_channels_observable() -> None:
+    """On +-300 permil steps sin(alpha + theta) bends enough for the offset of a pitched
+    channel to separate from its angle; the level channel's stays tied to its angle."""
+    offsets = (0.05, 0.0, -0.03)  # m/s^2: large, so that an unfitted one would show
+    chans = [c | {"bias_mps2": b, "noise_mps2": 0.001} for c, b in zip(board(), offsets, strict=True)]
+    grades = (-300.0, -100.0, 100.0, 300.0)
+    scenario = TILT_STEPS | {
+        "channels": chans,
+        "track": [{"length_m": 100.0, "gradient_permil": g} for g in grades],
+    }
+    table = TABLE.copy()
+    table[:, 2] = grades
+    fit = calibrate(recording(scenario), Config(), "table", table)
+    print(fit.report())
+    fitted = np.isfinite(fit.offset_sigma_mps2)
+    assert fitted.tolist() == [True, False, True]
+    assert fit.offsets_mps2[[0, 2]] == pytest.approx([0.05, -0.03], abs=5e-4)
+    err = fit.angles_deg - np.array(AS_BUILT)
+    assert abs(err[0]) <= TOLERANCE_DEG and abs(err[2]) <= TOLERANCE_DEG
+    scale = fit.config.channels[0].scale
+    assert fit.config.channels[0].offset == pytest.approx(fit.offsets_mps2[0] / scale)
+
+
+def test_no_acceleration_means_no_angles_from_speed_ref() -> None:
+    scenario = IN_MOTION | {"duration_s": 60.0, "train": [], "initial_speed_mps": 20.0}
+    with pytest.raises(BenchError, match="does not determine the angles.*acceleration"):
+        calibrate(recording(scenario), Config(), "speed")
+
+
+def test_speed_reference_needs_speed_ref_frames() -> None:
+    rec = recording({"duration_s": 3.0, "speed_ref": False, "channels": board()})
+    assert not rec.has_speed_ref
+    with pytest.raises(BenchError, match="no SPEED_REF"):
+        calibrate(rec, Config(), "speed")
+
+
+def test_angles_come_back_in_degrees_and_offsets_in_lsb() -> None:
+    """The written config is what the rest of the bench reads: angle_deg and offset in LSB
+    such that (code - offset) * scale is the corrected acceleration."""
+    fit = calibrate(recording(TILT_STEPS), Config(), "table", TABLE)
+    for i, ch in enumerate(fit.config.channels):
+        assert ch.angle_deg == pytest.approx(math.degrees(math.radians(fit.angles_deg[i])))
+        assert ch.scale == Config().channels[i].scale

@@ -1,0 +1,165 @@
+"""SIGTERM and SIGINT always leave a finished MCAP (summary and footer written).
+
+Black-box: ``bench run --emulate`` (and ``bench tui --emulate`` in a pseudo-terminal) in a
+subprocess, signalled once the log has data in it, then ``bench log info --json`` must
+call the file complete. A process manager may repeat the signal while the bench is
+shutting down (systemd, docker stop, an impatient operator): that must not cut the
+shutdown short either.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import pty
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+SCENARIO = """
+description = "signal test: 200 Hz, one minute, level"
+seed = 4
+duration_s = 60.0
+sample_rate_hz = 200
+"""
+
+
+@pytest.fixture
+def scenario(tmp_path: Path) -> Path:
+    p = tmp_path / "signal_test.toml"
+    p.write_text(SCENARIO, encoding="utf-8")
+    return p
+
+
+def bench_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "bench", *args]
+
+
+def wait_for_data(path: Path, proc: subprocess.Popen, timeout: float = 20.0) -> None:
+    """Until the log has grown by a few flushed chunks of frames past its header,
+    metadata and attachments (the sink flushes a chunk every 0.5 s)."""
+    deadline = time.monotonic() + timeout
+    first = None
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            pytest.fail(f"bench exited early with {proc.returncode}")
+        with contextlib.suppress(OSError):
+            size = path.stat().st_size
+            first = size if first is None else first
+            if size > first + 8192:
+                return
+        time.sleep(0.05)
+    pytest.fail(f"{path} got no data within {timeout} s")
+
+
+def log_info(path: Path) -> dict:
+    proc = subprocess.run(
+        bench_cmd("log", "info", str(path), "--json"),
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
+def assert_finished(path: Path) -> None:
+    info = log_info(path)
+    assert info["complete"] and not info["truncated"], (
+        f"{path.name} not finished: {info.get('warnings')}"
+    )
+
+
+def start_run(tmp_path: Path, scenario: Path) -> tuple[subprocess.Popen, Path]:
+    mcap = tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        bench_cmd("run", "--emulate", str(scenario), "--mcap", str(mcap), "--duration", "60", "-q"),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    return proc, mcap
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_run_signalled_mid_run_finishes_the_log(tmp_path: Path, scenario: Path, sig: int) -> None:
+    proc, mcap = start_run(tmp_path, scenario)
+    try:
+        wait_for_data(mcap, proc)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert_finished(mcap)
+    assert "Traceback" not in err
+    assert proc.returncode in (0, 130), err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "SIGINT"])
+def test_run_signalled_again_while_shutting_down_still_finishes_the_log(
+    tmp_path: Path, scenario: Path, sig: int
+) -> None:
+    proc, mcap = start_run(tmp_path, scenario)
+    try:
+        wait_for_data(mcap, proc)
+        for _ in range(12):  # keep signalling through the whole shutdown
+            if proc.poll() is not None:
+                break
+            proc.send_signal(sig)
+            time.sleep(0.04)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert_finished(mcap)
+    assert "Traceback" not in err
+    # -SIGINT: Python's own exit status after a KeyboardInterrupt, as a shell expects
+    assert proc.returncode in (0, 130, -signal.SIGINT), f"exit {proc.returncode}: {err}"
+
+
+def _drain(fd: int) -> None:
+    with contextlib.suppress(OSError):
+        while os.read(fd, 65536):
+            pass
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_tui_signalled_finishes_the_log(tmp_path: Path, scenario: Path, sig: int) -> None:
+    """`bench tui` in a pseudo-terminal: SIGTERM (kill, systemd) and SIGHUP (the terminal
+    or ssh session went away) must finish the log like `q` does."""
+    mcap = tmp_path / "tui.mcap"
+    master, slave = pty.openpty()
+    env = dict(os.environ, TERM="xterm-256color", COLUMNS="120", LINES="40")
+    proc = subprocess.Popen(
+        bench_cmd("tui", "--emulate", str(scenario), "--mcap", str(mcap)),
+        cwd=ROOT,
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        env=env,
+        start_new_session=True,
+    )
+    os.close(slave)
+    threading.Thread(target=_drain, args=(master,), daemon=True).start()
+    try:
+        wait_for_data(mcap, proc)
+        proc.send_signal(sig)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
+    assert_finished(mcap)

@@ -1,0 +1,85 @@
+"""Pictures of the main screen (pytest-textual-snapshot) in the valid, degraded and invalid states.
+
+Each picture comes from a fixed Snapshot: known frames run through a real LiveRunner to the
+end, with everything the clock would change (wall time, latency, recording figures) frozen.
+The estimator's columns are pinned too, so these pictures test the screen, not the estimator
+(which has its own tests). Regenerate after an intended change with
+``pytest tests/test_tui_snapshots.py --snapshot-update`` and look at the SVGs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.live import Snapshot
+from bench.tui.app import BenchApp
+from bench.tui.session import Session
+from protocol.layout import STATUS_SELFTEST
+from tests.test_tui_support import T0, make_frames, settled_snapshot
+
+SIZE = (100, 30)
+
+
+def fixed(tail: np.ndarray, *, excluded: int = 0, signed: float = 20.0) -> Snapshot:
+    """300 clean instants (20 permil) followed by ``tail``; estimator columns pinned."""
+    snap = settled_snapshot(np.concatenate([make_frames(300), tail]), estimator=False)
+    res = snap.results
+    res["gradient_signed"] = signed
+    res["gradient_ls"] = abs(signed)
+    res["a_ref"] = 0.0
+    res["residual"] = 0.0002
+    res["degraded"] = False
+    res["excluded"] = 0
+    if excluded:
+        bad = res["n"] >= 300
+        res["degraded"][bad] = True
+        res["excluded"][bad] = excluded
+        res["residual"][bad] = 0.0007
+    snap.source = "virtual board demo.toml"
+    snap.recording = {
+        "path": "logs/20231114T221320Z-emu-demo.mcap",
+        "frames": snap.frames_received,
+        "bytes": 48_213,
+        "duration_s": 2.0,
+    }
+    snap.extra["frames_sent"] = snap.frames_received
+    assert snap.events and snap.events[0][0] >= T0  # times come from the frames, not the clock
+    return snap
+
+
+def valid() -> Snapshot:
+    return fixed(make_frames(100, start=300))
+
+
+def degraded() -> Snapshot:
+    # ch3 off by 0.15 mm/s^2: g12 and g13 still agree, g23 does not -> v1 fails, 2/3 votes
+    return fixed(make_frames(100, start=300, perturb_mps2=(0.0, 0.0, 0.00015)))
+
+
+def invalid() -> Snapshot:
+    # ch2 flags SELFTEST: g12 and g23 cannot be computed -> all votes fail; ours excludes ch2
+    return fixed(make_frames(100, start=300, status=(0, STATUS_SELFTEST, 0)), excluded=2)
+
+
+@pytest.mark.parametrize("state", [valid, degraded, invalid], ids=lambda f: f.__name__)
+def test_main_screen(snap_compare: object, state: object) -> None:
+    snap = state()  # type: ignore[operator]
+    app = BenchApp(Session(runner=None, fixed=snap), poll_hz=0)
+
+    async def show(pilot: object) -> None:
+        app.apply_snapshot(snap)
+        await pilot.pause()  # type: ignore[attr-defined]
+
+    assert snap_compare(app, terminal_size=SIZE, run_before=show)  # type: ignore[operator]
+
+
+def test_states_are_what_the_pictures_claim() -> None:
+    """Guard the fixtures: each picture really shows the state it is named after."""
+    for make, votes in (
+        (valid, [True, True, True]),
+        (degraded, [False, True, True]),
+        (invalid, [False, False, False]),
+    ):
+        row = make().results[-1]
+        assert row["votes"].tolist() == votes, make.__name__
