@@ -8,9 +8,12 @@ The rules, all driven by frame contents and order (never by wall-clock time), so
 run and the replay of its log decide alike:
 
 * Unwrapping. Each valid ADC frame gets an unwrapped sample index ``n`` relative to the
-  previous valid ADC frame: the board-timestamp step (its 6.5536 s wraps resolved by the
-  receive-time step) predicts the counter step, and the counter (mod 256) corrects it.
-  So counter wrap 255 -> 0 never splits a sample and long gaps do not alias.
+  previous valid ADC frame from the board-timestamp step (its 6.5536 s wraps resolved by
+  the receive-time step). Once a BOARD_STATUS frame has given the sample rate, board time
+  alone places the frame and a counter that disagrees is reported (COUNTER_JUMP, per
+  frame and channel), so one channel's bad counter cannot pull the others apart. Before
+  that, the counter (mod 256) corrects the predicted step. Counter wrap 255 -> 0 never
+  splits a sample and long gaps do not alias.
 * Membership. A frame joins sample ``n`` unless it is *late* (some earlier frame already
   reached ``n + WINDOW``: the sample was closed) or a *duplicate* (its channel already
   joined ``n``). Late and duplicate frames are counted and ignored.
@@ -142,14 +145,17 @@ class Assembler:
         d = d + TS_WRAP * np.maximum(wraps, 0.0).astype(np.int64)
         est = np.rint(d / period).astype(np.int64)
         dc = (c - prev_c - est + COUNTER_WRAP // 2) % COUNTER_WRAP - COUNTER_WRAP // 2
-        n = n0 + np.cumsum(est + dc)
+        # once the rate is known, board time places the frame and the counter is checked
+        # against it; before that the counter leads and board time only bridges long gaps
+        n = n0 + np.cumsum(np.where(known, est, est + dc))
         big_t = big_t0 + np.cumsum(d)
         self._chain = (float(tt[-1]), int(ts[-1]), int(big_t[-1]), int(c[-1]), int(n[-1]))
 
-        jump = (dc != 0) & known
+        mismatch = (c - n + COUNTER_WRAP // 2) % COUNTER_WRAP - COUNTER_WRAP // 2
+        jump = (mismatch != 0) & known
         if jump.any():
             events.append(
-                make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], dc[jump])
+                make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], mismatch[jump])
             )
 
         # membership: late, duplicate, accepted
@@ -158,7 +164,9 @@ class Assembler:
         late = max_before >= n + WINDOW
         key = n * 4 + ch
         known = self._accepted_keys()
-        fresh = np.flatnonzero(~late & ~np.isin(key, known)) if len(known) else np.flatnonzero(~late)
+        fresh = (
+            np.flatnonzero(~late & ~np.isin(key, known)) if len(known) else np.flatnonzero(~late)
+        )
         _, first = _first_of_each(key[fresh])
         acc = np.zeros(len(n), dtype=bool)
         acc[fresh[first]] = True

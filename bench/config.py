@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
+from bench.textfile import read_text_file
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -191,10 +192,7 @@ def load_config(path: str | Path | None) -> Config:
     if path is None:
         return Config()
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read config: {exc.strerror or exc}") from None
+    text = read_text_file(p, "config")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

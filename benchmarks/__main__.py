@@ -19,8 +19,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import ROOT, Figure, fmt_value, machine_info
 from benchmarks._worker import MARKER
+from benchmarks.common import ROOT, Figure, fmt_value, machine_info
 
 DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 
@@ -61,12 +61,18 @@ def _ratio_text(f: Figure) -> str:
     return "-" if r is None else f"{r:.2f}x"
 
 
-def print_table(figures: list[Figure], machine: dict[str, Any], elapsed: float, quick: bool) -> None:
+def print_table(
+    figures: list[Figure], machine: dict[str, Any], elapsed: float, quick: bool
+) -> None:
     from rich.console import Console
     from rich.table import Table
 
     console = Console()
-    title = "gradient bench benchmarks" + (" (--quick: smoke test, not for quoting)" if quick else "")
+    if not console.is_terminal:  # piped or in CI: room for the whole table
+        console = Console(width=150)
+    title = "gradient bench benchmarks" + (
+        " (--quick: smoke test, not for quoting)" if quick else ""
+    )
     table = Table(title=title, title_justify="left")
     for col, kw in (
         ("figure", {}),
@@ -113,7 +119,7 @@ def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
     for f in figures:
         anchor = _anchor_text(f)
         if f.anchor_label and f.anchor is not None:
-            anchor = f"{anchor} ({f.anchor_label.split(' ')[0]} {' '.join(f.anchor_label.split(' ')[1:2])})"
+            anchor = f"{anchor} ({f.anchor_label})"
         lines.append(
             f"| {f.label} | {fmt_value(f.value, f.unit)} | {anchor} | {_ratio_text(f)} | "
             f"{f.target_text()} | {f.status} |"
@@ -159,7 +165,9 @@ def main(argv: list[str] | None = None) -> int:
         "machine": machine,
         "runs": runs,
         "figures": [f.as_dict() for f in figures],
-        "summary": {s: sum(f.status == s for f in figures) for s in ("PASS", "MISS", "ERROR", "INFO")},
+        "summary": {
+            s: sum(f.status == s for f in figures) for s in ("PASS", "MISS", "ERROR", "INFO")
+        },
     }
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -57,8 +57,10 @@ class Figure:
 
     @property
     def status(self) -> str:
-        if self.error or self.value is None or (
-            isinstance(self.value, float) and math.isnan(self.value)
+        if (
+            self.error
+            or self.value is None
+            or (isinstance(self.value, float) and math.isnan(self.value))
         ):
             return "ERROR"
         if self.target is None:
@@ -122,7 +124,7 @@ def _version(module: str) -> str:
         from importlib.metadata import version
 
         return version(module)
-    except Exception:  # noqa: BLE001 - informational only
+    except Exception:
         return "?"
 
 
@@ -238,6 +240,22 @@ def timed(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
         result = fn()
         best = min(best, time.perf_counter() - t0)
     return best, result
+
+
+def timed_pair(
+    a: Callable[[], Any], b: Callable[[], Any], repeat: int = 3
+) -> tuple[tuple[float, Any], tuple[float, Any]]:
+    """Best wall time of ``a`` and of ``b``, run alternately (a b a b ...), so that a figure
+    and its anchor see the same machine load even on a shared machine."""
+    best = [math.inf, math.inf]
+    result: list[Any] = [None, None]
+    for _ in range(max(1, repeat)):
+        for i, fn in enumerate((a, b)):
+            gc.collect()
+            t0 = time.perf_counter()
+            result[i] = fn()
+            best[i] = min(best[i], time.perf_counter() - t0)
+    return (best[0], result[0]), (best[1], result[1])
 
 
 def warm_file(path: Path) -> None:

@@ -57,7 +57,9 @@ def measure(n_samples: int = 1_000_000, repeat: int = 5) -> list[Figure]:
     def core() -> int:
         valid = 0
         for i in range(0, n, bs):
-            valid += int(fuse(acc[i : i + bs], angles, config.g, config.tolerance_permil).valid.sum())
+            valid += int(
+                fuse(acc[i : i + bs], angles, config.g, config.tolerance_permil).valid.sum()
+            )
         return valid
 
     dt, valid = timed(core, repeat)

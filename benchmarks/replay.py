@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import Figure, frames_for, timed, warm_file
+from benchmarks.common import Figure, frames_for, timed, timed_pair, warm_file
 
 CANDUMP_RATIO_TARGET = 3.0
 MCAP_REPLAY_TARGET = 2e6
@@ -87,9 +87,20 @@ def write_mcap(path: Path, steps: list[Any]) -> Any:
     return sink
 
 
-def _replay_figure(key: str, label: str, path: Path, repeat: int, anchor: float | None,
-                   anchor_label: str, n: int, **target: Any) -> Figure:
-    dt, out = timed(lambda: bench_replay(path), repeat)
+def _replay_vs(
+    key: str,
+    label: str,
+    path: Path,
+    anchor_fn: Any,
+    anchor_label: str,
+    repeat: int,
+    n: int,
+    **target: Any,
+) -> Figure:
+    """Bench replay of ``path`` timed alternately with its anchor (best of ``repeat`` each)."""
+    warm_file(path)
+    (a_dt, a_n), (dt, out) = timed_pair(anchor_fn, lambda: bench_replay(path), repeat)
+    anchor = a_n / a_dt
     seq = out.pipeline.seq
     return Figure(
         key,
@@ -100,7 +111,13 @@ def _replay_figure(key: str, label: str, path: Path, repeat: int, anchor: float 
         anchor_label=anchor_label,
         detail=f"{seq} frames, {out.pipeline.stats.samples} samples in {dt:.2f} s (best of "
         f"{repeat}); {path.stat().st_size / 1e6:.0f} MB",
-        extra={"frames": seq, "seconds": dt, "expected_frames": n},
+        extra={
+            "frames": seq,
+            "seconds": dt,
+            "expected_frames": n,
+            "anchor_frames": a_n,
+            "anchor_seconds": a_dt,
+        },
         **target,
     )
 
@@ -120,15 +137,17 @@ def measure(n_frames: int = 1_000_000, repeat: int = 3, workdir: str | None = No
         gen_s = time.perf_counter() - t0
 
         # -- candump ------------------------------------------------------------------------
-        warm_file(log)
-        a_dt, a_n = timed(lambda: logreader_iterate(log), repeat)
-        anchor = a_n / a_dt
-        fig = _replay_figure(
-            "replay_candump", "replay candump .log", log, repeat, anchor,
-            f"python-can LogReader {anchor / 1e3:.0f} k frames/s", n_frames,
-            target=CANDUMP_RATIO_TARGET, on="ratio",
+        fig = _replay_vs(
+            "replay_candump",
+            "replay candump .log",
+            log,
+            lambda: logreader_iterate(log),
+            "python-can LogReader",
+            repeat,
+            n_frames,
+            target=CANDUMP_RATIO_TARGET,
+            on="ratio",
         )
-        fig.extra["anchor_frames"] = a_n
         fig.extra["generation_s"] = gen_s
         figures.append(fig)
 
@@ -140,50 +159,56 @@ def measure(n_frames: int = 1_000_000, repeat: int = 3, workdir: str | None = No
                 "replay candump .log + CSV",
                 out.pipeline.seq / dt,
                 "frames/s",
-                anchor=anchor,
-                anchor_label="python-can LogReader (same file)",
-                detail=f"as above plus the per-sample CSV ({csv.stat().st_size / 1e6:.0f} MB)",
+                anchor=fig.anchor,
+                anchor_label="python-can LogReader",
+                detail=f"as above plus the per-sample CSV ({csv.stat().st_size / 1e6:.0f} MB), "
+                "one run",
             )
         )
+        csv.unlink()
 
         # -- BLF ----------------------------------------------------------------------------
-        warm_file(blf)
-        a_dt, a_n = timed(lambda: logreader_iterate(blf), repeat)
-        anchor = a_n / a_dt
         figures.append(
-            _replay_figure(
-                "replay_blf", "replay BLF .blf", blf, repeat, anchor,
-                f"python-can LogReader {anchor / 1e3:.0f} k frames/s", n_frames,
+            _replay_vs(
+                "replay_blf",
+                "replay BLF .blf",
+                blf,
+                lambda: logreader_iterate(blf),
+                "python-can LogReader",
+                repeat,
+                n_frames,
             )
         )
 
         # -- MCAP write, then MCAP replay of that recorded run --------------------------------
         steps = pipeline_steps(frames)
+        n_results = sum(len(s.results) for s in steps)
         t0 = time.perf_counter()
         sink = write_mcap(mcap, steps)
         dt = time.perf_counter() - t0
-        error = sink.error or ""
+        del steps
         figures.append(
             Figure(
                 "mcap_write",
                 "MCAP write (McapSink, full run log)",
                 len(frames) / dt,
                 "frames/s",
-                detail=f"{len(frames)} frames + {sum(len(s.results) for s in steps)} results, "
-                f"samples, events; {mcap.stat().st_size / 1e6:.0f} MB zstd, write+close "
-                f"{dt:.2f} s; logged {sink.frames_logged}",
-                error=error,
+                detail=f"{len(frames)} frames + {n_results} results, samples, events; "
+                f"{mcap.stat().st_size / 1e6:.0f} MB zstd; write+close {dt:.2f} s; "
+                f"logged {sink.frames_logged}",
+                error=sink.error or "",
                 extra={"frames_logged": sink.frames_logged, "dropped": sink.dropped},
             )
         )
-        del steps
-        warm_file(mcap)
-        a_dt, a_n = timed(lambda: mcap_iterate(mcap, FRAME_TOPIC), repeat)
-        anchor = a_n / a_dt
         figures.append(
-            _replay_figure(
-                "replay_mcap", "replay MCAP (recorded run)", mcap, repeat, anchor,
-                f"mcap package reader {anchor / 1e3:.0f} k frames/s", n_frames,
+            _replay_vs(
+                "replay_mcap",
+                "replay MCAP (recorded run)",
+                mcap,
+                lambda: mcap_iterate(mcap, FRAME_TOPIC),
+                "mcap package reader",
+                repeat,
+                n_frames,
                 target=MCAP_REPLAY_TARGET,
             )
         )

@@ -70,8 +70,14 @@ class _ErrorLog(logging.Handler):
         self.records.append(f"{record.name}: {record.getMessage()}")
 
 
-def soak(minutes: float, *, tui: bool = True, mem_bound_mb: float = 64.0,
-         mcap: Path | None = None, log: Any = print) -> dict[str, Any]:
+def soak(
+    minutes: float,
+    *,
+    tui: bool = True,
+    mem_bound_mb: float = 64.0,
+    mcap: Path | None = None,
+    log: Any = print,
+) -> dict[str, Any]:
     from benchmarks.live import run_live
 
     seconds = minutes * 60.0
@@ -108,8 +114,7 @@ def soak(minutes: float, *, tui: bool = True, mem_bound_mb: float = 64.0,
         f"({len({f['kind'] for f in faults})} kinds), MCAP on, TUI {'on' if tui else 'off'}"
     )
     try:
-        run = run_live(None, seconds, tui=tui, faults=faults, on_progress=progress,
-                       mcap_path=mcap)
+        run = run_live(None, seconds, tui=tui, faults=faults, on_progress=progress, mcap_path=mcap)
     finally:
         threading.excepthook = old_hook
         logging.getLogger().removeHandler(error_log)
@@ -167,7 +172,8 @@ def report(r: dict[str, Any], log: Any = print) -> None:
     st = run.get("stats", {})
     shown = {k: v for k, v in st.items() if isinstance(v, int) and v}
     log(f"  bench counted: {shown}")
-    log(f"  TUI snapshots applied: {run['tui_snapshots']}; fault kinds: {', '.join(r['fault_kinds'])}")
+    log(f"  TUI snapshots applied: {run['tui_snapshots']}")
+    log(f"  fault kinds: {', '.join(r['fault_kinds'])}")
     for name, ok in r["checks"].items():
         log(f"  [{'x' if ok else ' '}] {name}")
     for e in r["exceptions"][:20]:
@@ -175,7 +181,9 @@ def report(r: dict[str, Any], log: Any = print) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.soak", description=__doc__.split("\n\n")[1])
+    ap = argparse.ArgumentParser(
+        prog="python -m benchmarks.soak", description=__doc__.split("\n\n")[1]
+    )
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--no-tui", action="store_true", help="without the headless TUI")
     ap.add_argument("--mem-bound-mb", type=float, default=64.0)
@@ -186,8 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
-    r = soak(args.minutes, tui=not args.no_tui, mem_bound_mb=args.mem_bound_mb,
-             mcap=args.mcap, log=log)
+    r = soak(
+        args.minutes, tui=not args.no_tui, mem_bound_mb=args.mem_bound_mb, mcap=args.mcap, log=log
+    )
     report(r, log)
     if args.json:
         Path(args.json).write_text(json.dumps(r, indent=2, default=str) + "\n")

@@ -138,9 +138,26 @@ def test_gap_longer_than_timestamp_wrap_uses_receive_time():
 def test_counter_jump_against_board_time_is_reported_when_rate_known():
     frames = [status_frame(200, 0.0)] + [f for k in range(3) for f in instant(k)]
     frames += [adc(ch, 3 + 40, 1, 3 * 50, 3 / 200 + ch * 1e-4) for ch in (1, 2, 3)]
-    _, events = assemble(frames)
+    samples, events = assemble(frames)
     jumps = kinds(events, EventKind.COUNTER_JUMP)
-    assert jumps["value"].tolist() == [40]
+    assert jumps["value"].tolist() == [40, 40, 40]
+    assert samples["n"].tolist() == [0, 1, 2, 3]  # board time places them
+
+
+def test_one_channel_counter_off_does_not_pull_the_others_apart():
+    """A counter fault on ch1 alone: ch2 and ch3 must still make complete samples."""
+    frames = [status_frame(200, 0.0)]
+    for k in range(10):
+        f = instant(k)
+        if 3 <= k < 7:
+            f[0] = adc(1, k + 5, 100, k * 50, f[0].t)  # ch1 counter 5 ahead, timestamp right
+        frames += f
+    samples, events = assemble(frames)
+    assert samples["n"].tolist() == list(range(10))
+    assert samples["present"].all()
+    jumps = kinds(events, EventKind.COUNTER_JUMP)
+    assert jumps["channel"].tolist() == [1] * 4 and jumps["value"].tolist() == [5] * 4
+    assert len(kinds(events, EventKind.LATE)) == 0
 
 
 def test_unknown_id_and_wrong_dlc_are_events():

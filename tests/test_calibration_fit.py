@@ -59,7 +59,9 @@ TILT_STEPS = {
     "train": [{"duration_s": 10.0}, *HOP * 3],
     "channels": board(),
 }
-TABLE = np.array([[1.0, 10.0, -30.0], [41.0, 50.0, -10.0], [81.0, 90.0, 10.0], [121.0, 130.0, 30.0]])
+TABLE = np.array(
+    [[1.0, 10.0, -30.0], [41.0, 50.0, -10.0], [81.0, 90.0, 10.0], [121.0, 130.0, 30.0]]
+)
 
 IN_MOTION = {
     "seed": 32,
@@ -123,7 +125,9 @@ def test_large_tilt_steps_make_the_offsets_of_pitched_channels_observable() -> N
     """On +-300 permil steps sin(alpha + theta) bends enough for the offset of a pitched
     channel to separate from its angle; the level channel's stays tied to its angle."""
     offsets = (0.05, 0.0, -0.03)  # m/s^2: large, so that an unfitted one would show
-    chans = [c | {"bias_mps2": b, "noise_mps2": 0.001} for c, b in zip(board(), offsets, strict=True)]
+    chans = [
+        c | {"bias_mps2": b, "noise_mps2": 0.001} for c, b in zip(board(), offsets, strict=True)
+    ]
     grades = (-300.0, -100.0, 100.0, 300.0)
     scenario = TILT_STEPS | {
         "channels": chans,
@@ -144,7 +148,7 @@ def test_large_tilt_steps_make_the_offsets_of_pitched_channels_observable() -> N
 
 def test_no_acceleration_means_no_angles_from_speed_ref() -> None:
     scenario = IN_MOTION | {"duration_s": 60.0, "train": [], "initial_speed_mps": 20.0}
-    with pytest.raises(BenchError, match="does not determine the angles.*acceleration"):
+    with pytest.raises(BenchError, match=r"does not determine the angles.*acceleration"):
         calibrate(recording(scenario), Config(), "speed")
 
 

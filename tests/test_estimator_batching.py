@@ -6,6 +6,8 @@ estimator's events) must agree to the last bit, or a replay could not vouch for 
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -101,7 +103,7 @@ def test_scalar_and_vector_paths_are_twins() -> None:
     def push_all(bounds: list[int]) -> tuple[np.ndarray, np.ndarray]:
         est = Estimator(config)
         outs, evs = [], []
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        for lo, hi in itertools.pairwise(bounds):
             sp = speeds[(owner >= lo) & (owner < hi)]
             out, ev = est.push(samples[lo:hi], acc[lo:hi], ok[lo:hi], sp)
             outs.append(out)

@@ -217,7 +217,7 @@ def test_drift_is_singled_out_by_the_residual_when_it_passes_the_limit() -> None
 
 
 def test_without_speed_ref_the_magnitude_remains_and_the_signed_gradient_is_unavailable() -> None:
-    res, _, truth = run(
+    res, _, _ = run(
         {
             "duration_s": 5.0,
             "speed_ref": False,

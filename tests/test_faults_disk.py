@@ -192,7 +192,7 @@ def test_tui_survives_disk_full_and_shows_it(
     monkeypatch.setattr(
         writer, "open", lambda *a, **k: _FailingFile(real_open(*a, **k)), raising=False
     )
-    session, setup, first = _session(tmp_path, f"disk-tui-{id(tmp_path)}")
+    session, _, first = _session(tmp_path, f"disk-tui-{id(tmp_path)}")
     app = BenchApp(session, poll_hz=10.0)
 
     async def scenario() -> None:
@@ -222,7 +222,7 @@ def test_tui_survives_disk_full_and_shows_it(
 def test_tui_log_folder_unusable_then_usable_again(tmp_path: Path) -> None:
     from bench.tui.app import BenchApp
 
-    session, setup, first = _session(tmp_path, f"disk-folder-{id(tmp_path)}")
+    session, _, _ = _session(tmp_path, f"disk-folder-{id(tmp_path)}")
     app = BenchApp(session, poll_hz=10.0)
     logs = tmp_path / "logs"
     parked = tmp_path / "logs.parked"

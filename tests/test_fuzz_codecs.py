@@ -14,6 +14,7 @@ tests/test_protocol_*.py and tests/test_devices_candump.py.)
 
 from __future__ import annotations
 
+import itertools
 import os
 import struct
 from pathlib import Path
@@ -94,7 +95,7 @@ def test_pipeline_takes_any_board_like_stream(
     frames, cuts = stream
     p = Pipeline(Config(sample_rate_hz=rate))
     bounds = [0, *cuts, len(frames)]
-    outs = [p.process(SourceBatch(frames[a:b])) for a, b in zip(bounds, bounds[1:], strict=False)]
+    outs = [p.process(SourceBatch(frames[a:b])) for a, b in itertools.pairwise(bounds)]
     outs.append(p.finish())
     n = np.concatenate([o.results["n"] for o in outs])
     assert np.all(np.diff(n) > 0), "samples must come out once each, in n order"

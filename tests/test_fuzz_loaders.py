@@ -51,13 +51,49 @@ TOML_LITERALS = st.one_of(
     st.integers(min_value=-(2**63), max_value=2**63 - 1).map(str),
     st.sampled_from(
         [
-            "0", "-1", "1e308", "-1e308", "5e-324", "nan", "inf", "-inf", "+nan", "0x7FF",
-            "0o777", "0b101", "1979-05-27", "1979-05-27T07:32:00Z", "07:32:00", "true",
-            "false", '""', '"x"', "'\\u0000'", '"\\u00e9\\u00e9"', "[]", "[1, 2, 3]",
-            '[1, "a"]', "[[1], [2]]", "{}", "{ a = 1 }", "9223372036854775807",
-            "-9223372036854775808", "1_000_000", "3.0", "-0.0", "1e-9", "[nan]",
-            '"' + "x" * 300 + '"', '["SELFTEST", "BOGUS"]', '"uart"', '"bus"', "4", "1000",
-            "1001", "49", "0.95",
+            "0",
+            "-1",
+            "1e308",
+            "-1e308",
+            "5e-324",
+            "nan",
+            "inf",
+            "-inf",
+            "+nan",
+            "0x7FF",
+            "0o777",
+            "0b101",
+            "1979-05-27",
+            "1979-05-27T07:32:00Z",
+            "07:32:00",
+            "true",
+            "false",
+            '""',
+            '"x"',
+            "'\\u0000'",
+            '"\\u00e9\\u00e9"',
+            "[]",
+            "[1, 2, 3]",
+            '[1, "a"]',
+            "[[1], [2]]",
+            "{}",
+            "{ a = 1 }",
+            "9223372036854775807",
+            "-9223372036854775808",
+            "1_000_000",
+            "3.0",
+            "-0.0",
+            "1e-9",
+            "[nan]",
+            '"' + "x" * 300 + '"',
+            '["SELFTEST", "BOGUS"]',
+            '"uart"',
+            '"bus"',
+            "4",
+            "1000",
+            "1001",
+            "49",
+            "0.95",
         ]
     ),
     st.floats(allow_nan=False, allow_infinity=False).map(repr),
@@ -131,7 +167,9 @@ NASTY_SCALARS = st.one_of(
 )
 NASTY_VALUES = st.recursive(
     NASTY_SCALARS,
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner, max_size=4),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=6), inner, max_size=4)
+    ),
     max_leaves=12,
 )
 
@@ -230,7 +268,9 @@ def _loader(name: str) -> Any:
 
 @pytest.mark.parametrize("kind", ["binary", "utf16", "folder"])
 @pytest.mark.parametrize("loader", ["config", "scenario", "plan"])
-def test_binary_and_folder_files_are_one_config_error(tmp_path: Path, loader: str, kind: str) -> None:
+def test_binary_and_folder_files_are_one_config_error(
+    tmp_path: Path, loader: str, kind: str
+) -> None:
     p = tmp_path / "x.toml"
     if kind == "binary":
         p.write_bytes(b"\xff\xfe\x00garbage\x00" * 10)

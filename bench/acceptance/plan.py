@@ -19,6 +19,7 @@ from typing import Any
 from bench.acceptance.checks import KINDS, CheckSpec, Param
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
+from bench.textfile import read_text_file
 
 PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
 """The plan library shipped with the bench (``bench/plans/*.toml``)."""
@@ -332,7 +333,7 @@ def _scenario(w: _Where, value: Any, plan_dir: Path | None) -> tuple[Any, dict |
         except ConfigError as exc:
             raise w.error("scenario", str(exc)) from None
         sc = load_scenario(path)
-        return sc, tomllib.loads(path.read_text(encoding="utf-8")), str(path)
+        return sc, tomllib.loads(read_text_file(path, "scenario")), str(path)
     raise w.error("scenario", f"expected a [scenario] table or a file name, got {_tname(value)}")
 
 
@@ -407,13 +408,7 @@ def resolve_plan_path(name: str | Path) -> Path:
 def load_plan(name: str | Path) -> Plan:
     """Read and validate a plan file (or a shipped plan by name)."""
     p = resolve_plan_path(name)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read plan: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start})") from None
-    return parse_plan(text, p.name, p)
+    return parse_plan(read_text_file(p, "plan"), p.name, p)
 
 
 def shipped_plans() -> list[Path]:

@@ -584,6 +584,8 @@ def write_reports(outcome: Outcome, *, plots: bool = True) -> dict[str, Path]:
     if mcap.exists():
         outcome.files["mcap"] = mcap
         files["run.mcap"] = {"bytes": mcap.stat().st_size, "sha256": _sha256(mcap)}
+    if (out / "scenario.toml").exists():
+        files["scenario.toml"] = {"bytes": (out / "scenario.toml").stat().st_size}
     plot_files: dict[str, str] = {}
     if plots:
         try:

@@ -404,6 +404,12 @@ def _run_data(
     )
 
 
+def _check_log(sink: Any) -> None:
+    """A run whose MCAP log failed has no record to stand on: the bench failed."""
+    if getattr(sink, "error", None):
+        raise BenchError(f"the run's MCAP log failed: {sink.error}")
+
+
 def _uart_sent(sim: Any) -> int:
     stream = sim.uart_stream()
     return len(stream) - stream.packets_broken
@@ -439,6 +445,7 @@ def _run_emulated(
             collector.write(step)
     finally:
         sink.close()
+    _check_log(sink)
     info["stats"] = pipeline.stats.as_dict()
     sent = _uart_sent(sim) if plan.link == "uart" else len(sim.frames)
     run = _run_data(
@@ -541,6 +548,7 @@ def _run_live(
         setup.close()
     if runner.error:
         raise BenchError(runner.error)
+    _check_log(sink)
     info["stats"] = runner.pipeline.stats.as_dict()
     sent = getattr(player, "frames_sent", None) if player is not None else None
     snap = runner.snapshot(last=1)

@@ -9,10 +9,11 @@ import sys
 import threading
 import time
 from types import FrameType
+from typing import Any
 
 from bench.config import load_config
 from bench.live import LiveRunner, Snapshot
-from bench.liveopts import add_live_arguments, open_live, open_recording
+from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
 from bench.replay import CsvSink
 from bench.summary import print_summary
 
@@ -67,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        stop.set()  # a second signal while shutting down changes nothing: the log still finishes
 
-    old = signal.signal(signal.SIGTERM, on_signal)
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     start = time.monotonic()
     tty = sys.stderr.isatty()
     last_print = 0.0
@@ -86,29 +87,40 @@ def run(args: argparse.Namespace) -> int:
             if not args.quiet and elapsed - last_print >= (0.5 if tty else 5.0):
                 last_print = elapsed
                 line = status_line(runner.snapshot(last=1), elapsed)
-                print(
-                    ("\r" + line) if tty else line,
-                    end="" if tty else "\n",
-                    file=sys.stderr,
-                    flush=True,
-                )
-    except KeyboardInterrupt:
-        pass
+                end = "" if tty else "\n"
+                print(("\r" + line) if tty else line, end=end, file=sys.stderr, flush=True)
     finally:
-        signal.signal(signal.SIGTERM, old)
         if setup.emulator is not None:
             setup.emulator.stop()
         runner.stop()
         setup.close()
+    try:
+        return _report(args, runner, setup, recording, start, tty)
+    finally:
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+
+
+def _report(
+    args: argparse.Namespace,
+    runner: LiveRunner,
+    setup: LiveSetup,
+    recording: Any,
+    start: float,
+    tty: bool,
+) -> int:
+    """The closing lines of a run; returns the exit code."""
     if tty and not args.quiet:
         print(file=sys.stderr)
     snap = runner.snapshot(last=1)
     if not args.quiet:
         print(status_line(snap, time.monotonic() - start), file=sys.stderr)
         print_summary(runner.pipeline.stats, title=f"run on {setup.description}")
-        if recording is not None:
-            print(f"bench: log written: {recording.path}", file=sys.stderr)
+    log_error = getattr(recording, "error", None) if recording is not None else None
+    if log_error:
+        print(f"bench: error: the MCAP log failed: {log_error}", file=sys.stderr)
+    elif recording is not None and not args.quiet:
+        print(f"bench: log written: {recording.path}", file=sys.stderr)
     if runner.error:
         print(f"bench: error: {runner.error}", file=sys.stderr)
-        return 1
-    return 0
+    return 1 if (runner.error or log_error) else 0

@@ -49,6 +49,8 @@ EXCLUDED_OF_MASK = (1, 2, 1, 3, 1, 2, 1, 0)
 """Channel reported as excluded, by mask of channels used: the one left out of a pair,
 the lowest unused one when fewer than two remain, 0 with all three."""
 _EXCLUDED_OF_MASK = np.array(EXCLUDED_OF_MASK, dtype=np.uint8)
+_RESIDUAL, _STUCK, _STATUS = int(Reason.RESIDUAL), int(Reason.STUCK), int(Reason.STATUS)
+_NO_EVENTS = np.zeros(0, dtype=EVENT_DTYPE)
 SCALAR_MAX = 16
 """Batches up to this many samples take the scalar path (live runs: the fixed cost of
 numpy calls would dominate); longer ones the vectorised path. Same results either way."""
@@ -127,42 +129,41 @@ class Estimator:
         """Twin of :meth:`_push_vector`, one sample at a time in Python floats."""
         rows = []
         events: list[tuple] = []
-        ticks_l = samples["ticks"].tolist()
-        t_l = samples["t"].tolist()
-        seq_l = samples["seq"].tolist()
-        n_l = samples["n"].tolist()
-        code_l = samples["code"].tolist()
-        present_l = samples["present"].tolist()
-        acc_l = acc.tolist()
-        usable_l = usable.tolist()
         geo, g = self.geo, self.g
-        for i in range(len(ticks_l)):
-            ticks, ok = ticks_l[i], usable_l[i]
-            a_ref = self.a_ref.step(ticks, t_l[i], seq_l[i])
-            stuck = self.stuck.step(ticks, code_l[i], present_l[i])
-            healthy = [ok[k] and not stuck[k] for k in range(3)]
-            cand = healthy[0] and healthy[1] and healthy[2]
-            a = acc_l[i]
-            a_h = (
-                a[0] if healthy[0] else 0.0,
-                a[1] if healthy[1] else 0.0,
-                a[2] if healthy[2] else 0.0,
-            )
-            residual, single = self.isolator.step(a_h, cand, a_ref)
+        a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
+        isolate, latch = self.isolator.step, self.latch.step
+        residual_reason, stuck_reason, status_reason = _RESIDUAL, _STUCK, _STATUS
+        for ticks, t, seq, n, code, present, a, ok in zip(
+            samples["ticks"].tolist(),
+            samples["t"].tolist(),
+            samples["seq"].tolist(),
+            samples["n"].tolist(),
+            samples["code"].tolist(),
+            samples["present"].tolist(),
+            acc.tolist(),
+            usable.tolist(),
+            strict=True,
+        ):
+            a_ref = a_ref_step(ticks, t, seq)
+            stuck = stuck_step(ticks, code, present)
+            h0, h1, h2 = (ok[k] and not stuck[k] for k in range(3))
+            a0, a1, a2 = a
+            a_h = (a0 if h0 else 0.0, a1 if h1 else 0.0, a2 if h2 else 0.0)
+            residual, single = isolate(a_h, h0 and h1 and h2, a_ref)
             reason = [0, 0, 0]
             if single >= 0:
-                reason[single] = Reason.RESIDUAL
+                reason[single] = residual_reason
             for k in range(3):
                 if stuck[k]:
-                    reason[k] = Reason.STUCK
-                if present_l[i][k] and not ok[k]:
-                    reason[k] = Reason.STATUS
-            latched, ev = self.latch.step(ticks, t_l[i], n_l[i], reason)
-            events += ev
-            used = [ok[k] and not latched[k] for k in range(3)]
-            code = used[0] + 2 * used[1] + 4 * used[2]
-            a_u = (a[0] if used[0] else 0.0, a[1] if used[1] else 0.0, a[2] if used[2] else 0.0)
-            u, w = solve_one(a_u, code, geo)
+                    reason[k] = stuck_reason
+                if present[k] and not ok[k]:
+                    reason[k] = status_reason
+            latched, ev = latch(ticks, t, n, reason)
+            if ev:
+                events += ev
+            u0, u1, u2 = (ok[k] and not latched[k] for k in range(3))
+            mask = u0 + 2 * u1 + 4 * u2
+            u, w = solve_one((a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0), mask, geo)
             rows.append(
                 (
                     signed_gradient_one(u, w, a_ref),
@@ -171,9 +172,9 @@ class Estimator:
                     w,
                     a_ref,
                     residual,
-                    code != FULL,
-                    EXCLUDED_OF_MASK[code],
+                    mask != FULL,
+                    EXCLUDED_OF_MASK[mask],
                 )
             )
         out = np.array(rows, dtype=ESTIMATE_DTYPE)
-        return out, np.array(events, dtype=EVENT_DTYPE)
+        return out, np.array(events, dtype=EVENT_DTYPE) if events else _NO_EVENTS

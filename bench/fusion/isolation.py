@@ -96,10 +96,6 @@ def _fixed(v: np.ndarray) -> np.ndarray:
     return np.rint(np.clip(v, -CLIP_MPS2, CLIP_MPS2) * FIXED_POINT).astype(np.int64)
 
 
-def _fixed_one(v: float) -> int:
-    return round(min(max(v, -CLIP_MPS2), CLIP_MPS2) * FIXED_POINT)
-
-
 class ResidualIsolator:
     """Singles out one channel where the moving-mean residual exceeds the limit.
 
@@ -171,32 +167,38 @@ class ResidualIsolator:
         return residual, single
 
     def step(self, acc: Row, cand: bool, a_ref: float) -> tuple[float, int]:
+        """Scalar twin of :meth:`push` (same expressions, same order, so the same floats)."""
         a0, a1, a2 = acc
-        residual = combine(self.geo.parity, a0, a1, a2)
-        row = (0, 0, 0, 0, 0)
-        if cand:
-            misses = []
-            for pu, pw in self.pairs:
-                du = combine(pu, a0, a1, a2) - a_ref
-                w = combine(pw, a0, a1, a2)
-                misses.append(
-                    _fixed_one((math.sqrt(du * du + w * w) if a_ref == a_ref else w) - self.g)
-                )
-            row = (_fixed_one(residual), misses[0], misses[1], misses[2], 1)
-        sums = [s + r for s, r in zip(self.sums, row, strict=True)]
+        p0, p1, p2 = self.geo.parity
+        residual = p0 * a0 + p1 * a1 + p2 * a2
+        if not cand:
+            row: tuple[int, ...] = (0, 0, 0, 0, 0)
+        else:
+            g, lim = self.g, CLIP_MPS2
+            has_ref = a_ref == a_ref
+            vals = [residual]
+            for (u0, u1, u2), (w0, w1, w2) in self.pairs:
+                w = w0 * a0 + w1 * a1 + w2 * a2
+                if has_ref:
+                    du = u0 * a0 + u1 * a1 + u2 * a2 - a_ref
+                    w = math.sqrt(du * du + w * w)
+                vals.append(w - g)
+            row = (*(round(min(max(v, -lim), lim) * FIXED_POINT) for v in vals), 1)
+        s0, s1, s2, s3, s4 = self.sums
+        r0, r1, r2, r3, r4 = row
+        sums = (s0 + r0, s1 + r1, s2 + r2, s3 + r3, s4 + r4)
         if self.window > 1:
             self.tail.append(row)
-            old = self.tail.popleft()
-            self.sums = [s - o for s, o in zip(sums, old, strict=True)]
-        single = -1
-        if cand:
-            count = max(sums[4], 1)
-            if abs(sums[0] / (count * FIXED_POINT)) > self.limit:
-                mean_miss = [abs(m) / (count * FIXED_POINT) for m in sums[1:4]]
-                order = sorted(mean_miss)
-                if order[0] < ISOLATION_RATIO * order[1]:
-                    single = mean_miss.index(order[0])
-        return (residual if cand else math.nan), single
+            o0, o1, o2, o3, o4 = self.tail.popleft()
+            self.sums = [sums[0] - o0, sums[1] - o1, sums[2] - o2, sums[3] - o3, sums[4] - o4]
+        if not cand:
+            return math.nan, -1
+        scale = max(sums[4], 1) * FIXED_POINT
+        if not abs(sums[0] / scale) > self.limit:
+            return residual, -1
+        mean_miss = [abs(m) / scale for m in sums[1:4]]
+        order = sorted(mean_miss)
+        return residual, mean_miss.index(order[0]) if order[0] < ISOLATION_RATIO * order[1] else -1
 
 
 # ----------------------------------------------------------------------------- latch

@@ -82,8 +82,10 @@ class ReferenceAcceleration:
         self._last: tuple[float, float, bool, bool] = (math.nan, math.nan, False, False)
 
     def buffer(self, speeds: np.ndarray) -> None:
+        """Keep this step's SPEED_REF frames until samples may apply them."""
         if len(speeds):
-            self._pending = np.concatenate([self._pending, speeds])
+            pending = self._pending
+            self._pending = np.concatenate([pending, speeds]) if len(pending) else speeds
 
     def push(self, samples: np.ndarray) -> np.ndarray:
         """a_ref (m/s^2, NaN = unavailable) for each sample, in order."""

@@ -39,6 +39,7 @@ from bench.tui.session import Session
 TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 """What + and - step through (per mille): fine where the vote is touchy, coarse above."""
 
+WIDE_COLUMNS = 140
 REPLAY_ACTIONS = {"play_pause", "speed", "step", "next_failure"}
 
 
@@ -110,6 +111,10 @@ class BenchApp(App[int]):
         if self.poll_hz > 0:
             self.set_interval(1.0 / self.poll_hz, self.poll)
             self.poll()
+
+    def on_resize(self) -> None:
+        """Wide terminals: let the per-pair panel and the plot share the width evenly."""
+        self.screen.set_class(self.size.width >= WIDE_COLUMNS, "-wide")
 
     # -- snapshots ------------------------------------------------------------------------
     def poll(self) -> None:
@@ -236,7 +241,7 @@ class BenchApp(App[int]):
             text.append("  DISPLAY PAUSED (acquisition and log continue)", style="bold yellow")
         if self.quitting:
             text.append("  finishing the log…", style="bold yellow")
-        self.query_one("#status-bar", Static).update(text)
+        self.query_one("#status-bar", Static).update(text, layout=False)
 
     def _plot_title(self) -> str:
         w = self.window_s

@@ -39,6 +39,7 @@ class Recorder:
         self._closed = False
         self.last_status: dict[str, Any] | None = None  # of the last file, once stopped
         self.files: list[Path] = []
+        self._started = time.time()  # wall time the current file was opened
         if sink is not None:
             self.files.append(Path(sink.path))
 
@@ -67,6 +68,7 @@ class Recorder:
                 raise RuntimeError("the run has stopped")
             if self._sink is None:
                 self._sink = self._open_sink()
+                self._started = time.time()
                 self.files.append(Path(self._sink.path))
             return Path(self._sink.path)
 
@@ -80,16 +82,20 @@ class Recorder:
         """Close a detached sink and keep its final status for the UI."""
         if sink is None:
             return
+        duration = time.time() - self._started
         sink.close()
         with contextlib.suppress(Exception):
             self.last_status = sink_status(sink)
+            self.last_status.setdefault("duration_s", duration)
 
     def status(self) -> dict[str, Any] | None:
         s = self._sink
         if s is None:
             return None
         try:
-            return sink_status(s)
+            status = sink_status(s)
+            status.setdefault("duration_s", time.time() - self._started)
+            return status
         except Exception as exc:  # the UI must survive a sink that cannot report
             return {"path": str(getattr(s, "path", "?")), "error": repr(exc)}
 

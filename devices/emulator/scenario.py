@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
+from bench.textfile import read_text_file
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -530,10 +531,7 @@ def builtin_scenarios() -> list[str]:
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario file (or a built-in scenario by name)."""
     p = resolve_scenario_path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read scenario: {exc.strerror or exc}") from None
+    text = read_text_file(p, "scenario")
     return replace(parse_scenario(text, p.name), path=str(p))
 
 

@@ -85,5 +85,5 @@ class BoardPanel(Static):
         self.border_title = "Source & board"
 
     def show(self, s: Snapshot, *, live: bool = True) -> None:
-        self.update(board_lines(s, live=live))
+        self.update(board_lines(s, live=live), layout=False)
         self.border_subtitle = Text(s.error, style="bold red") if s.error else ""

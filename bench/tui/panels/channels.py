@@ -106,6 +106,6 @@ class ChannelsPanel(Static):
         self.border_title = "Per channel"
 
     def show(self, row: np.void | None, stats: Stats, rates: list[float]) -> None:
-        self.update(channel_table(row, stats, rates))
+        self.update(channel_table(row, stats, rates), layout=False)
         flagged = sum(c.status_flagged for c in stats.channels)
         self.border_subtitle = f"status-flagged {flagged}" if flagged else ""

@@ -20,6 +20,8 @@ from bench.events import EventKind, severity
 
 STYLE = {"info": "cyan", "warning": "yellow", "error": "bold red"}
 MAX_ROWS = 500
+EVENT_WIDTH = 96
+"""Fixed text column width (cropped by the panel): no re-measuring on every update."""
 MERGE_DEPTH = 4
 """How many of the newest rows a repeating event may be counted into."""
 _SAMPLE = re.compile(r" sample (\d+)")
@@ -73,7 +75,7 @@ def new_events(
 
 
 class EventsPanel(DataTable):
-    """Newest at the bottom; scrolls to it unless the operator has scrolled up."""
+    """Newest at the bottom; follows it unless the operator has clicked in and scrolled up."""
 
     def __init__(self, **kwargs: object) -> None:
         super().__init__(show_header=False, cursor_type="none", cell_padding=0, **kwargs)  # type: ignore[arg-type]
@@ -84,33 +86,43 @@ class EventsPanel(DataTable):
     def on_mount(self) -> None:
         self.border_title = "Events (UTC)"
         self.add_column("time", key="time", width=13)
-        self.add_column("event", key="event")
+        self.add_column("event", key="event", width=EVENT_WIDTH)
 
     def show(self, events: list[tuple[float, int, str]]) -> None:
         fresh, missed = new_events(events, self._last)
         if not fresh:
             return
-        follow = self.scroll_y >= self.max_scroll_y - 1
+        # follow the newest row unless the operator is reading back (focused and scrolled up)
+        follow = not self.has_focus or self.scroll_y >= self.max_scroll_y - 1
+        pending: list[tuple[Row, float]] = []  # rows to add, with the time of their first event
+        dirty: dict[int, Row] = {}  # rows already on screen whose count changed
         if missed:
-            self._add(Row("…", int(EventKind.MARK), "… more events than the buffer held"), 0.0)
+            pending.append((Row("…", int(EventKind.MARK), "… more events than the buffer"), 0.0))
         for t, kind, text in fresh:
             key, n = split_sample(text)
-            hit = next((r for r in reversed(self._rows[-MERGE_DEPTH:]) if r.key == key), None)
+            recent = [*self._rows[-MERGE_DEPTH:], *(r for r, _ in pending[-MERGE_DEPTH:])]
+            hit = next((r for r in reversed(recent[-MERGE_DEPTH:]) if r.key == key), None)
             if hit is not None and n >= 0:
                 hit.count += 1
                 hit.last_n = n
-                self.update_cell(hit.row_key, "event", hit.label(), update_width=True)  # type: ignore[arg-type]
+                if hit.row_key is not None:
+                    dirty[id(hit)] = hit
             else:
-                self._add(Row(key, kind, text, first_n=n, last_n=n), t)
+                pending.append((Row(key, kind, text, first_n=n, last_n=n), t))
+        # one table operation per row, however many events arrived: a fault that repeats
+        # every sample at 1 kHz must not cost the UI thread thousands of cell updates
+        for row in dirty.values():
+            self.update_cell(row.row_key, "event", row.label())  # type: ignore[arg-type]
+        for row, t in pending[-MAX_ROWS:]:
+            row.row_key = self.add_row(Text(stamp(t), style="dim"), row.label())
+            self._rows.append(row)
+        excess = len(self._rows) - MAX_ROWS
+        if excess > 0:
+            for old in self._rows[:excess]:
+                self.remove_row(old.row_key)  # type: ignore[arg-type]
+            del self._rows[:excess]
         self._last = fresh[-1]
         self.received += len(fresh)
-        self.border_subtitle = f"{self.received} events"
+        self.border_subtitle = f"events: {self.received}"
         if follow:
             self.scroll_end(animate=False, immediate=False)
-
-    def _add(self, row: Row, t: float) -> None:
-        row.row_key = self.add_row(Text(stamp(t), style="dim"), row.label())
-        self._rows.append(row)
-        if len(self._rows) > MAX_ROWS:
-            old = self._rows.pop(0)
-            self.remove_row(old.row_key)  # type: ignore[arg-type]

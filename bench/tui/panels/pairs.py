@@ -67,21 +67,21 @@ def pair_table(row: np.void | None, tolerance: float) -> Table:
 def final_text(row: np.void | None) -> str:
     """The final gradient for the Digits widget (never negative: the method has no sign)."""
     if row is None or not bool(row["valid"]) or not math.isfinite(float(row["gradient"])):
-        return "--.--"
-    return f"{float(row['gradient']):.2f}"
+        return " --.--"
+    return f"{float(row['gradient']):6.2f}"  # fixed width: no relayout on every update
 
 
 def ours_text(row: np.void | None) -> tuple[str, str]:
     """Our estimator's figure for the Digits widget and what it is ('signed', '|LS|', 'n/a')."""
     if row is None:
-        return "--.--", "n/a"
+        return " --.--", "n/a"
     signed = float(row["gradient_signed"])
     if math.isfinite(signed):
-        return f"{signed:+.2f}", "signed"
+        return f"{signed:+6.2f}", "signed"
     ls = float(row["gradient_ls"])
     if math.isfinite(ls):
-        return f"{ls:.2f}", "|LS|"
-    return "--.--", "n/a"
+        return f"{ls:6.2f}", "|LS|"
+    return " --.--", "n/a"
 
 
 def ours_detail(row: np.void | None) -> Text:
@@ -110,7 +110,7 @@ class PairsPanel(Vertical):
         with Horizontal(id="final-row"):
             yield Digits(final_text(None), id="final")
             yield Static("", id="final-state")
-            yield Digits("--.--", id="ours")
+            yield Digits(" --.--", id="ours")
             yield Static("ours\nn/a", id="ours-label")
         yield Static("", id="ours-detail")
 
@@ -127,14 +127,14 @@ class PairsPanel(Vertical):
             )
         else:
             self.border_title = f"Per pair · tol ±{tolerance:g} ‰"
-        self.query_one("#pair-table", Static).update(pair_table(row, tolerance))
+        self.query_one("#pair-table", Static).update(pair_table(row, tolerance), layout=False)
         final = self.query_one("#final", Digits)
         final.update(final_text(row))
         for s in ("valid", "degraded", "invalid", "none"):
             final.set_class(s == state, s)
         passed = 0 if row is None else int(np.count_nonzero(row["votes"]))
         label = self.query_one("#final-state", Static)
-        label.update(Text(f"‰\n{STATE_LABEL[state]}\n{passed}/3 votes"))
+        label.update(Text(f"‰\n{STATE_LABEL[state]}\n{passed}/3 votes"), layout=False)
         for s in ("valid", "degraded", "invalid", "none"):
             label.set_class(s == state, s)
         ours, kind = ours_text(row)
@@ -142,9 +142,9 @@ class PairsPanel(Vertical):
         ours_w.update(ours)
         ours_w.set_class(kind == "n/a", "none")
         ours_w.set_class(row is not None and bool(row["degraded"]), "degraded")
-        self.query_one("#ours-label", Static).update(f"‰ ours\n{kind}")
-        self.query_one("#ours-detail", Static).update(ours_detail(row))
-        self.values = {"final": final_text(row), "state": state, "ours": ours}
+        self.query_one("#ours-label", Static).update(f"‰ ours\n{kind}", layout=False)
+        self.query_one("#ours-detail", Static).update(ours_detail(row), layout=False)
+        self.values = {"final": final_text(row).strip(), "state": state, "ours": ours.strip()}
         if row is not None:
             for k in range(3):
                 self.values[PAIR_NAMES[k]] = num(row["slopes"][k], ".3f")

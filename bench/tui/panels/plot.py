@@ -7,7 +7,6 @@ the poller thread (:func:`prepare_series`), so the UI thread only draws a few hu
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,27 +75,54 @@ def render_plot(plot: Plot, series: PlotSeries | None, width: int, height: int) 
     plot.clear_data()
     plot.clear_figure()
     plot.theme("clear")
+    plot.frame(False)  # the panel has a border already: two more rows of data instead
     plot.plotsize(max(10, width), max(4, height))
     plot._set_size(max(10, width), max(4, height))  # see textual-plotext issue #5
-    plot.xlabel("s")
     window = series.window_s if series is not None else WINDOWS_S[0]
     plot.xlim(-window, 0)
-    lo, hi = math.inf, -math.inf
+    plot.xticks(*_ticks(window))
+    lo, hi = y_range(series)
     if series is not None and len(series.x):
         for key, _label, color in TRACES:
             y = series.y[key]
             ok = np.isfinite(y)
-            if not ok.any():
-                continue
-            xs, ys = series.x[ok], y[ok]
-            lo, hi = min(lo, float(ys.min())), max(hi, float(ys.max()))
-            plot.plot(xs.tolist(), ys.tolist(), color=color, marker="braille")
-    if math.isfinite(lo):
-        pad = max(0.5, 0.05 * (hi - lo))
-        plot.ylim(lo - pad, hi + pad)
-    else:
-        plot.ylim(-1, 1)
+            if ok.any():
+                # clip (rather than drop) what is off the scale, so it shows at the edge
+                ys = np.clip(y[ok], lo, hi)
+                plot.plot(series.x[ok].tolist(), ys.tolist(), color=color, marker="braille")
+    plot.ylim(lo, hi)
     return Text.from_ansi(plot.build(), no_wrap=True)
+
+
+def y_range(series: PlotSeries | None) -> tuple[float, float]:
+    """The y scale: all of the final gradient and our estimate, and the pair traces but for
+    their outliers (near level track one bad pair value can be hundreds of per mille and would
+    flatten everything else), padded."""
+    if series is None or len(series.x) == 0:
+        return -1.0, 1.0
+    keep: list[np.ndarray] = []
+    for key, _label, _color in TRACES:
+        y = series.y[key]
+        y = y[np.isfinite(y)]
+        if len(y) == 0:
+            continue
+        if key in ("gradient", "signed"):
+            keep.append(y)
+        else:
+            keep.append(np.percentile(y, [5.0, 95.0]))
+    if not keep:
+        return -1.0, 1.0
+    all_y = np.concatenate(keep)
+    lo, hi = float(all_y.min()), float(all_y.max())
+    pad = max(0.5, 0.08 * (hi - lo))
+    return lo - pad, hi + pad
+
+
+def _ticks(window: float) -> tuple[list[float], list[str]]:
+    """Four x ticks labelled in seconds before now (the axis is 'seconds ago')."""
+    ticks = [-window * k / 4 for k in (4, 3, 2, 1, 0)]
+    labels = [f"{t:g} s" if t else "now" for t in ticks]
+    return ticks, labels
 
 
 class GradientPlot(Static):
@@ -104,4 +130,4 @@ class GradientPlot(Static):
 
     def show(self, text: Text | None) -> None:
         if text is not None:
-            self.update(text)
+            self.update(text, layout=False)

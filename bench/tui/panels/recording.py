@@ -15,6 +15,8 @@ _SIZE_KEYS = ("bytes", "size_bytes", "size")
 _DURATION_KEYS = ("duration_s", "duration")
 _SHOWN = {
     "path",
+    "lost",
+    "queue",
     "frames",
     "results",
     "dropped",
@@ -49,14 +51,16 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
     table.add_row(head)
     table.add_row(str(status.get("path", MISSING)))
     table.add_row(_figures(status, duration=False))
-    dropped = status.get("dropped")
+    line = Text()
+    for key in ("dropped", "lost"):
+        if status.get(key):
+            line.append(f"{key} {status[key]}  ", style="bold red")
+    if "queue" in status:
+        line.append(f"queue {status['queue']}", style="dim")
     err = status.get("error") or status.get("errors")
-    if dropped or err:
-        line = Text()
-        if dropped:
-            line.append(f"dropped {dropped}  ", style="bold red")
-        if err:
-            line.append(str(err), style="bold red")
+    if err:
+        line.append(f"\n{err}", style="bold red")
+    if line:
         table.add_row(line)
     extra = [f"{k} {v}" for k, v in status.items() if k not in _SHOWN and _is_scalar(v)]
     if extra:
@@ -82,5 +86,5 @@ class RecordingPanel(Static):
         self.border_title = "Recording"
 
     def show(self, status: dict[str, Any] | None, last: dict[str, Any] | None = None) -> None:
-        self.update(recording_table(status, last))
+        self.update(recording_table(status, last), layout=False)
         self.set_class(status is not None, "recording")
