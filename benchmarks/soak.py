@@ -7,7 +7,9 @@ MCAP logging on and the TUI attached headless (polling and rendering as on a scr
 It passes when, over the whole run:
 
 * frames sent = frames received = frames logged (the finished MCAP read back), nothing
-  dropped by the runner or the logger, the MCAP file complete;
+  dropped by the runner or the logger, the MCAP file complete, and the bench kept up (every
+  frame through the pipeline within 0.5 s of the board stopping: python-can's virtual bus
+  queues without limit, so a bench falling behind would otherwise look lossless);
 * resident memory after the warm-up (the UI history ring fills in the first minute at
   1 kHz) grows by at most ``--mem-bound-mb`` (default 64 MB);
 * no exception anywhere: not in any thread (``threading.excepthook``), not logged at
@@ -126,6 +128,7 @@ def soak(
         "frames sent = received = logged": run.sent == run.received == run.logged > 0,
         "nothing dropped": run.dropped == 0 and run.mcap_dropped == 0,
         "board sent every frame": run.board_errors == 0,
+        "bench kept up (all frames through within 0.5 s of the end)": run.kept_up,
         "MCAP complete": run.mcap_complete,
         f"memory growth after warm-up <= {mem_bound_mb:g} MB": growth <= mem_bound_mb,
         "no exception": not (run.errors or thread_errors or error_log.records),

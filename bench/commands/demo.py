@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         first = open_recording(
             args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
         )
-    except Exception:
+    except BaseException:
         setup.close()
         raise
     log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR

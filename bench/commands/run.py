@@ -52,12 +52,32 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = load_config(args.config)
-    setup = open_live(args)
+    # from the first moment: a signal at any point ends the run with a finished log
+    stop = threading.Event()
+    signalled: list[int] = []
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        signalled.append(signum)  # a second signal while shutting down changes nothing
+        stop.set()
+
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        config = load_config(args.config)
+        setup = open_live(args)
+    except BaseException:
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        raise
     sinks = []
-    recording = open_recording(
-        args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
-    )
+    try:
+        recording = open_recording(
+            args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
+        )
+    except BaseException:
+        setup.close()
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        raise
     if recording is not None:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)
@@ -65,12 +85,6 @@ def run(args: argparse.Namespace) -> int:
         sinks.append(CsvSink(args.csv))
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()  # a second signal while shutting down changes nothing: the log still finishes
-
-    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     start = time.monotonic()
     tty = sys.stderr.isatty()
     last_print = 0.0
@@ -98,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
         return _report(args, runner, setup, recording, start, tty)
     finally:
         for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
+            # after a signal the process is on its way out: stay deaf to repeats, also through
+            # interpreter teardown (which resets Python-level handlers, but not SIG_IGN)
+            signal.signal(sig, signal.SIG_IGN if signalled else handler)
 
 
 def _report(

@@ -684,12 +684,10 @@ def _concat(arrays: list[np.ndarray]) -> np.ndarray:
         return arrays[0][:0]
     if len(parts) == 1:
         return parts[0]
-    out = np.empty(sum(len(a) for a in parts), dtype=parts[0].dtype)
-    pos = 0
-    for a in parts:
-        out[pos : pos + len(a)] = a
-        pos += len(a)
-    return out
+    dtype = parts[0].dtype
+    if any(a.dtype != dtype for a in parts):
+        return np.concatenate(parts)
+    return np.frombuffer(bytearray(b"".join(a.tobytes() for a in parts)), dtype=dtype)
 
 
 def _merge_steps(
