@@ -166,8 +166,11 @@ def _session(tmp_path: Path, channel: str) -> tuple[Any, Any, Any]:
 
 
 def _screen_text(app: Any) -> str:
-    svg = app.export_screenshot()
-    return re.sub(r"\s+", " ", svg.replace("&#160;", " "))
+    """What the screen shows, as plain text lines (rendered by the app's compositor)."""
+    lines = []
+    for strip in app.screen._compositor.render_update(full=True).strips:  # type: ignore[attr-defined]
+        lines.append("".join(seg.text for seg in strip))
+    return "\n".join(lines)
 
 
 async def _until(cond: Any, timeout: float, what: str) -> None:
@@ -205,7 +208,7 @@ def test_tui_survives_disk_full_and_shows_it(
             await _until(lambda: runner.frames_received > seen + 600, 10, "acquisition after it")
             await _until(lambda: app.snapshots_applied > shown + 3, 10, "the screen updating")
             await pilot.pause()
-            assert "No space left on device" in _screen_text(app)
+            print(_screen_text(app)); assert "No space left on device" in _screen_text(app)
             assert runner.error is None
             await pilot.press("q")
             await _until(lambda: not app.is_running, 15, "the app to quit")

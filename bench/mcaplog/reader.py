@@ -196,9 +196,13 @@ class McapLog:
         self.warnings: list[str] = []
         self.bad_chunks: list[tuple[ChunkInfo, str]] = []
         self._zstd: Any = None
-        self._scan()
-        if self.data_end is not None:
-            self._read_footer()
+        try:
+            self._scan()
+            if self.data_end is not None:
+                self._read_footer()
+        except BaseException:
+            self.close()
+            raise
         for w in self.warnings:
             log.warning("%s", w)
 
@@ -634,8 +638,13 @@ class McapLog:
         returns the problems found (empty = all good or not recorded)."""
         problems = []
         crc = self.data_section_crc
-        if self.data_end is not None and crc and zlib.crc32(self._mm[: self.data_end]) != crc:
-            problems.append("data section CRC mismatch")
+        if self.data_end is not None and crc:
+            calc = 0
+            step = 16 << 20
+            for start in range(0, self.data_end, step):  # in blocks: files can be GBs
+                calc = zlib.crc32(self._mm[start : min(start + step, self.data_end)], calc)
+            if calc != crc:
+                problems.append("data section CRC mismatch")
         for info in self.chunks:
             buf = self.decompress(info)
             if buf is None:

@@ -43,6 +43,12 @@ WIDE_COLUMNS = 140
 REPLAY_ACTIONS = {"play_pause", "speed", "step", "next_failure"}
 
 
+def plot_size(plot: Text) -> tuple[int, int]:
+    """(width, height) a drawn plot fills."""
+    lines = plot.plain.split("\n")
+    return (max((len(line) for line in lines), default=0), len(lines))
+
+
 def next_tolerance(current: float, direction: int) -> float:
     if direction > 0:
         return next((s for s in TOLERANCE_STEPS if s > current + 1e-9), TOLERANCE_STEPS[-1])
@@ -139,12 +145,14 @@ class BenchApp(App[int]):
             return
         self.post_message(SnapshotReady(snap, plot, rates))
 
-    def _prepare(self, snap: Snapshot, width: int, height: int) -> tuple[Text, list[float]]:
+    def _prepare(
+        self, snap: Snapshot, width: int, height: int, *, rates: bool = True
+    ) -> tuple[Text, list[float]]:
         """The heavy part of a display update: thin the series and draw the plot."""
         series = prepare_series(snap.results, self.window_s, max_points=max(50, 2 * width))
         with self._plot_lock:
             plot = render_plot(self._plot, series, width, height)
-        return plot, self._rates.update(snap.stats, snap.wall)
+        return plot, self._rates.update(snap.stats, snap.wall) if rates else []
 
     def _rows_needed(self) -> int:
         rate = self.session.runner.config.sample_rate_hz if self.session.runner else 1000
@@ -181,11 +189,21 @@ class BenchApp(App[int]):
             row, snap.tolerance_permil, cursor=self.cursor_n is not None
         )
         self.query_one(ChannelsPanel).show(row, snap.stats, rates)
-        self.query_one(GradientPlot).show(plot)
+        self.query_one(GradientPlot).show(plot, plot_size(plot))
         self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
         self.query_one(RecordingPanel).show(snap.recording, snap.extra.get("last_recording"))
         self.query_one(EventsPanel).show(snap.events)
         self.snapshots_applied += 1
+
+    def redraw_plot(self) -> None:
+        """The plot panel changed size: draw the last snapshot again for the new size."""
+        snap = self.last_snapshot
+        widget = self.query_one(GradientPlot)
+        size = widget.content_size
+        if snap is None or size.width <= 0 or size.height <= 0 or self.display_paused:
+            return
+        plot, _ = self._prepare(snap, size.width, size.height, rates=False)
+        widget.show(plot, plot_size(plot))
 
     def _row(self, snap: Snapshot) -> np.void | None:
         res = snap.results

@@ -126,8 +126,18 @@ def _ticks(window: float) -> tuple[list[float], list[str]]:
 
 
 class GradientPlot(Static):
-    """Shows the plot text the poller drew."""
+    """Shows the plot text the poller drew, and asks for a redraw when its size changes
+    (a plot drawn for another size would be cut or padded)."""
 
-    def show(self, text: Text | None) -> None:
+    drawn_size: tuple[int, int] = (0, 0)
+
+    def show(self, text: Text | None, size: tuple[int, int] | None = None) -> None:
         if text is not None:
             self.update(text, layout=False)
+            if size is not None:
+                self.drawn_size = size
+
+    def on_resize(self) -> None:
+        size = (self.content_size.width, self.content_size.height)
+        if size != self.drawn_size and hasattr(self.app, "redraw_plot"):
+            self.app.redraw_plot()
