@@ -53,6 +53,8 @@ OFFSET_SIGMA_MAX = 2e-4
 ANGLE_SIGMA_MAX_DEG = 0.5
 """Beyond this the angles are not determined by the recording: an error, not a result."""
 MAX_ITER = 50
+OFFSET_NOTE_MPS2 = 9.80665e-4
+"""0.1 mg: the report says what an offset this size would do to an angle."""
 REFERENCES = ("speed", "level", "table")
 
 
@@ -73,7 +75,7 @@ class Recording:
 class Fit:
     """Result of calibration."""
 
-    reference: str  # "level", "speed" or the table's file name
+    reference: str  # what the recording was fitted against, in words
     angles_deg: np.ndarray  # (3,)
     angle_sigma_deg: np.ndarray  # (3,)
     offsets_mps2: np.ndarray  # (3,) change relative to the config (0 where not fitted)
@@ -82,6 +84,10 @@ class Fit:
     blocks: int
     start: Config
     config: Config  # the calibrated config
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        return np.radians(self.angles_deg)
 
     def report(self) -> str:
         lines = [
@@ -103,6 +109,17 @@ class Fit:
             else:
                 text += f", offset not observable (kept at {old.offset:g} LSB)"
             lines.append(text)
+        kept = [i for i in range(3) if not math.isfinite(self.offset_sigma_mps2[i])]
+        if kept:
+            shift = [
+                math.degrees(OFFSET_NOTE_MPS2 / (self.start.g * math.cos(self.angles_rad[i])))
+                for i in kept
+            ]
+            per = ", ".join(f"ch{i + 1} {d:.4f}" for i, d in zip(kept, shift, strict=True))
+            lines.append(
+                "  (uncertainties are statistical; 0.1 mg of offset not fitted would shift "
+                f"an angle by {per} deg)"
+            )
         return "\n".join(lines)
 
 
@@ -136,7 +153,7 @@ def read_table(path: str | Path) -> np.ndarray:
         cells = [c.strip() for c in row]
         if not cells or not cells[0] or cells[0].startswith("#"):
             continue
-        if lineno == 1 and cells[0] == "start_s":
+        if cells[0] == "start_s" and not rows:  # the header
             continue
         try:
             values = [float(c) for c in cells]
@@ -157,10 +174,11 @@ def read_table(path: str | Path) -> np.ndarray:
     return np.array(rows, dtype=np.float64)
 
 
-def block_means(rec: Recording, keep: np.ndarray, sample_rate_hz: float) -> tuple[np.ndarray, ...]:
+def block_means(rec: Recording, keep: np.ndarray) -> tuple[np.ndarray, ...]:
     """Means per BLOCK_S block of the kept samples with all channels usable.
 
     Returns (block ids, mean acc (B, 3), mean a_ref (B,)) for blocks filled to MIN_FILL."""
+    rate = 1.0 / float(np.median(np.diff(rec.time_s))) if len(rec.time_s) > 1 else 0.0
     ok = keep & np.isfinite(rec.acc).all(axis=1)
     block = np.floor(rec.time_s[ok] / BLOCK_S).astype(np.int64)
     ids, inverse, counts = np.unique(block, return_inverse=True, return_counts=True)
@@ -168,14 +186,14 @@ def block_means(rec: Recording, keep: np.ndarray, sample_rate_hz: float) -> tupl
     for k in range(3):
         acc[:, k] = np.bincount(inverse, rec.acc[ok, k], len(ids)) / counts
     a_ref = np.bincount(inverse, np.nan_to_num(rec.a_ref[ok]), len(ids)) / counts
-    full = counts >= MIN_FILL * BLOCK_S * sample_rate_hz
+    full = counts >= MIN_FILL * BLOCK_S * rate
     return ids[full], acc[full], a_ref[full]
 
 
 def steady(rec: Recording) -> np.ndarray:
     """Samples in blocks where a_ref is available and settled: it varies by less than
     STEADY_MPS2 from STEADY_WINDOW_S[0] before the block to STEADY_WINDOW_S[1] after it
-    (the causal filter lags for a second or two after a change of acceleration)."""
+    (the causal filter needs a moment to follow a change of acceleration)."""
     if len(rec.time_s) == 0:
         return np.zeros(0, dtype=bool)
     fin = np.isfinite(rec.a_ref)
@@ -302,7 +320,7 @@ def calibrate(
             keep |= (rec.time_s >= start) & (rec.time_s < end)
         keep &= standstill
         name = f"tilt-table steps ({len(table)})"
-    ids, m, a = block_means(rec, keep, config.sample_rate_hz)
+    ids, m, a = block_means(rec, keep)
     if len(ids) < 2:
         raise BenchError(f"calibration: too little usable data against the {name}")
     g = config.g

@@ -65,6 +65,30 @@ def bench_replay(path: Path, csv: Path | None = None) -> Any:
         source.close()
 
 
+def read_only(path: Path) -> int:
+    """The bench's reader alone: open_log(path).batches() (what replay feeds the pipeline)."""
+    from devices.files import open_log
+
+    source = open_log(path)
+    try:
+        return sum(len(b.frames) for b in source.batches(65536))
+    finally:
+        source.close()
+
+
+def pipeline_only(frames: Any, batch: int = 65536) -> int:
+    """The pipeline alone on frames already in memory, in replay's batch size."""
+    from bench.config import Config
+    from bench.pipeline import Pipeline
+    from devices.base import SourceBatch
+
+    p = Pipeline(Config())
+    for i in range(0, len(frames), batch):
+        p.process(SourceBatch(frames[i : i + batch]))
+    p.finish()
+    return p.seq
+
+
 def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
     from bench.config import Config
     from bench.pipeline import Pipeline
@@ -210,6 +234,26 @@ def measure(n_frames: int = 1_000_000, repeat: int = 3, workdir: str | None = No
                 repeat,
                 n_frames,
                 target=MCAP_REPLAY_TARGET,
+            )
+        )
+
+        # -- where the replay time goes: each reader alone, the pipeline alone ----------------
+        for key, label, path in (
+            ("read_candump", "  candump reader alone", log),
+            ("read_mcap", "  MCAP reader alone", mcap),
+        ):
+            dt, n = timed(lambda p=path: read_only(p), repeat)
+            figures.append(
+                Figure(key, label, n / dt, "frames/s", detail=f"open_log().batches(): {n} frames")
+            )
+        dt, n = timed(lambda: pipeline_only(frames), repeat)
+        figures.append(
+            Figure(
+                "pipeline_only",
+                "  pipeline alone (frames in memory)",
+                n / dt,
+                "frames/s",
+                detail="decode, assemble, fuse, estimator, events, stats; 65536-frame steps",
             )
         )
     return figures

@@ -2,7 +2,7 @@
 by side on one emulated run (run from the repository root: python docs/make_estimator_plot.py).
 
 The run: a train pulls away on level track, climbs +15 permil, runs down a -10 permil grade
-and stops on it; 2 ug of sensor noise; ch3's ADC code freezes for 20 s on the down-grade.
+and stops on it; 2 ug of sensor noise; ch3's ADC code freezes for 15 s on the down-grade.
 Prints the numbers the README quotes.
 """
 
@@ -41,7 +41,7 @@ SCENARIO = {
         {"duration_s": 40.0, "accel_mps2": -0.5},
     ],
     "channels": [{"noise_mps2": 2e-5}] * 3,
-    "faults": [{"channel": 3, "kind": "stuck", "start_s": 100.0, "end_s": 120.0}],
+    "faults": [{"channel": 3, "kind": "stuck", "start_s": 82.0, "end_s": 97.0}],
 }
 
 
@@ -54,14 +54,14 @@ def main(out: Path = ROOT / "docs" / "img" / "estimators.png") -> None:
     ref, signed = res["gradient"], res["gradient_signed"]
 
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.2), sharex=True, height_ratios=[3, 2])
-    stuck = (t >= 100.0) & (t < 120.0)
+    stuck = (t >= 82.5) & (t < 97.0)
     for ax in (top, bottom):
-        ax.axvspan(100.0, 120.0, color="0.9", zorder=0)
+        ax.axvspan(82.0, 97.0, color="0.9", zorder=0)
         ax.grid(alpha=0.3)
     top.plot(t, ref, ".", ms=1.2, color="tab:orange", label="reference method (device)")
     top.plot(t, signed, lw=0.8, color="tab:blue", label="bench estimator (signed)")
     top.plot(t, truth, "--", lw=1.0, color="black", label="truth")
-    top.text(101, 17, "ch3 stuck:\nexcluded,\ndegraded", fontsize=8, va="top")
+    top.text(83, 17, "ch3 stuck:\nexcluded,\ndegraded", fontsize=8, va="top")
     top.set_ylabel("gradient (per mille)")
     top.set_ylim(-22, 22)
     top.legend(loc="lower left", fontsize=8, ncols=3)
@@ -88,8 +88,8 @@ def main(out: Path = ROOT / "docs" / "img" / "estimators.png") -> None:
         )
 
     stats((t >= 1) & (t < 5), "standstill, level")
-    stats((t >= 75) & (t < 100), "cruise on -10 permil")
-    stats(stuck, "ch3 stuck on -10 permil")
+    stats((t >= 45) & (t < 74), "cruise on +15 permil")
+    stats(stuck, "cruise on -10 permil, ch3 stuck")
 
 
 if __name__ == "__main__":

@@ -272,7 +272,8 @@ def test_noise_warnings_are_bounded(tmp_path: Path, capsys: pytest.CaptureFixtur
     path.write_bytes(noise)
     code, err = _replay(path, capsys, "-q")
     assert code in (0, 2)
-    assert len(err.splitlines()) <= 60, f"{len(err.splitlines())} lines of warnings"
+    warnings = [line for line in err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) <= 30, f"{len(warnings)} warnings printed"
 
 
 def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:

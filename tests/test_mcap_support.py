@@ -69,7 +69,8 @@ def synthetic_stream(
         ts = round(k * 10000 / rate_hz) & 0xFFFF
         for ch in (1, 2, 3):
             theta = math.radians(NOMINAL_ANGLES_DEG[ch - 1])
-            a = G0 * math.sin(alpha + theta) + 0.05 * math.sin(2 * math.pi * 0.5 * t)
+            accel = 0.05 * math.sin(2 * math.pi * 0.5 * (t - t0))  # the train, m/s^2
+            a = accel * math.cos(theta) + G0 * math.sin(alpha + theta)  # ICD section 3
             code = round(a / NOMINAL_SCALE + rng.normal(0, 30))
             status = 0
             if faults and rng.random() < 0.01:

@@ -15,6 +15,7 @@ import math
 import platform
 import socket
 import sys
+import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
@@ -244,8 +245,8 @@ def _envelope(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tup
     pad = bins * size - n
     xp = np.concatenate([x, np.full(pad, x[-1])]).reshape(bins, size)
     yp = np.concatenate([y, np.full(pad, np.nan)]).reshape(bins, size)
-    with np.errstate(all="ignore"), np.testing.suppress_warnings() as sup:
-        sup.filter(RuntimeWarning)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN bins are expected
         lo, hi = np.nanmin(yp, axis=1), np.nanmax(yp, axis=1)
     xs = np.repeat(xp[:, 0], 2)
     ys = np.column_stack([lo, hi]).ravel()

@@ -58,10 +58,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.log}: {fit.report()}")
     out = Path(args.out)
     try:
+        header = [f"bench calibrate {args.log} --reference {args.reference or reference}"]
+        header += fit.report().splitlines()
         out.write_text(
-            f"# bench calibrate {args.log} --reference {args.reference or reference}\n"
-            + fit.config.to_toml(),
-            encoding="utf-8",
+            "".join(f"# {line}\n" for line in header) + fit.config.to_toml(), encoding="utf-8"
         )
     except OSError as exc:
         raise BenchError(f"cannot write {out}: {exc.strerror or exc}") from None

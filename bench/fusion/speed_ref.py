@@ -13,11 +13,12 @@ timestamps, unwrapped here) run on two unsynchronised 100 us clocks. Where recei
 t are finite, each stream's offset to the receive clock is the least observed latency
 ``min(t - clock)``, made leaky (it may rise by ``clock_drift_ppm`` per second) so it
 follows a clock that runs slow. A frame measured at o then happened at board time
-o + off_odo - off_board (off_board taken at the frame's anchor). The constant latency
-both minima leave in is the same bus's, so it cancels to within the frames' jitter.
-Without receive times (a NaN anywhere involved) the fallback is arrival order: a frame
-counts as measured at its anchor's board time, and the odometer's 6.5536 s timestamp
-wraps are resolved from the anchors' board-time steps instead of receive-time steps.
+o + off_odo - off_board (off_board taken at the frame's anchor). What the minima keep is
+each stream's least latency; their difference cannot be seen in receive times and counts
+as zero (both streams share the bus), so a frame delayed on its way still maps to the
+instant it was measured. Without receive times (a NaN involved) the fallback is arrival
+order: a frame counts as measured at its anchor's board time, and the odometer's 6.5536 s
+timestamp wraps are resolved from the anchors' board-time steps instead.
 
 What the alignment decides: the age of the newest applied frame at each sample's instant
 (coasting: after ``coast_s`` without SPEED_REF a_ref is unavailable, NaN). With the
@@ -26,8 +27,9 @@ filter's latest estimate, so no extrapolation is applied to the value itself.
 
 Standstill: when the odometer has reported exactly 0 mm/s for ``standstill_s`` of its
 own time, a_ref is exactly 0.0. A gap longer than ``coast_s`` between frames restarts the
-filter. a_ref is also unavailable until the filter's own acceleration uncertainty is
-below ``a_ref_sigma_mps2`` (the first fraction of a second after a start).
+filter. a_ref is also unavailable while the filter's own acceleration uncertainty exceeds
+``a_ref_sigma_mps2``: for a fraction of a second after a start and after each change of
+acceleration the filter detects (see :mod:`bench.fusion.kalman`).
 """
 
 from __future__ import annotations

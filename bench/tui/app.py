@@ -1,14 +1,17 @@
 """The bench TUI: a thin App that lays out the panels and maps keys to session actions.
 
 The App never blocks on acquisition: a timer (4 Hz) starts a worker thread that copies a
-:class:`~bench.live.Snapshot` from the runner and prepares the plot series, then posts them
-back; at most one snapshot is in flight, so a slow terminal only lowers the display rate and
-never backs up the receive path (the runner's bounded queue and drop counters are shown).
+:class:`~bench.live.Snapshot` from the runner and draws the plot, then posts both back. At
+most one snapshot is in flight, so a slow terminal only lowers the display rate and never
+backs up the receive path (the runner's bounded queue and drop counters are shown).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import math
+import signal
 import threading
 from collections.abc import Iterable
 from typing import ClassVar
@@ -77,8 +80,16 @@ class BenchApp(App[int]):
         Binding("j", "next_failure", "Next fail"),
     ]
 
-    def __init__(self, session: Session, *, poll_hz: float = 4.0, window_s: float = 10.0) -> None:
+    def __init__(
+        self,
+        session: Session,
+        *,
+        poll_hz: float = 4.0,
+        window_s: float = 10.0,
+        handle_signals: bool = False,
+    ) -> None:
         super().__init__()
+        self.handle_signals = handle_signals
         self.session = session
         self.poll_hz = poll_hz
         self.window_s = window_s
@@ -94,6 +105,7 @@ class BenchApp(App[int]):
         self._plot_lock = threading.Lock()
         self._failure_seen: object = None
         self.stop_error: str | None = None
+        self.marks = 0  # operator marks (the runner also counts tolerance changes as marks)
 
     # -- layout ---------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -117,6 +129,16 @@ class BenchApp(App[int]):
         if self.poll_hz > 0:
             self.set_interval(1.0 / self.poll_hz, self.poll)
             self.poll()
+        if self.handle_signals:
+            self._install_signal_handlers()
+
+    def _install_signal_handlers(self) -> None:
+        """SIGTERM, and SIGHUP when the terminal window is closed, quit like q: the MCAP file
+        is finished instead of being cut off mid-chunk."""
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGHUP):
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                loop.add_signal_handler(sig, lambda: self.call_later(self.action_quit))
 
     def on_resize(self) -> None:
         """Wide terminals: let the per-pair panel and the plot share the width evenly."""
@@ -311,9 +333,9 @@ class BenchApp(App[int]):
             self.call_from_thread(self.notify, f"closing the log failed: {exc!r}", severity="error")
 
     def action_mark(self) -> None:
-        n = (self.session.runner.marks if self.session.runner else 0) + 1
-        self.session.mark(f"operator mark {n}")
-        self.notify(f"mark {n} recorded")
+        self.marks += 1
+        self.session.mark(f"operator mark {self.marks}")
+        self.notify(f"mark {self.marks} recorded")
 
     def action_tolerance(self, direction: int) -> None:
         tol = next_tolerance(self.session.tolerance(), int(direction))

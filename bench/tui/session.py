@@ -40,6 +40,8 @@ class Recorder:
         self.last_status: dict[str, Any] | None = None  # of the last file, once stopped
         self.files: list[Path] = []
         self._started = time.time()  # wall time the current file was opened
+        self._pending: dict[int, Any] = {}  # detached, not yet being closed
+        self._closing: dict[int, threading.Event] = {}  # being closed; set when done
         if sink is not None:
             self.files.append(Path(sink.path))
 
@@ -76,17 +78,29 @@ class Recorder:
         """Stop recording; returns the sink, which the caller closes (off the UI thread)."""
         with self._lock:
             sink, self._sink = self._sink, None
+            if sink is not None:
+                self._pending[id(sink)] = sink
         return sink
 
     def finish(self, sink: Any) -> None:
-        """Close a detached sink and keep its final status for the UI."""
+        """Close a detached sink (once, whoever gets there first: the UI's worker or the
+        runner's shutdown) and keep its final status for the UI."""
         if sink is None:
             return
+        with self._lock:
+            if self._pending.pop(id(sink), None) is None:
+                return
+            done = self._closing[id(sink)] = threading.Event()
         duration = time.time() - self._started
-        sink.close()
-        with contextlib.suppress(Exception):
-            self.last_status = sink_status(sink)
-            self.last_status.setdefault("duration_s", duration)
+        try:
+            sink.close()
+            with contextlib.suppress(Exception):
+                self.last_status = sink_status(sink)
+                self.last_status.setdefault("duration_s", duration)
+        finally:
+            done.set()
+            with self._lock:
+                self._closing.pop(id(sink), None)
 
     def status(self) -> dict[str, Any] | None:
         s = self._sink
@@ -111,10 +125,19 @@ class Recorder:
                 self._sink.mark(t, text)
 
     def close(self) -> None:
+        """The runner is done: close the current file and any still being closed, and wait
+        for them, so that quitting never leaves an unfinished MCAP file behind."""
         with self._lock:
-            sink, self._sink = self._sink, None
+            current, self._sink = self._sink, None
             self._closed = True
-        self.finish(sink)
+            if current is not None:
+                self._pending[id(current)] = current
+            todo = list(self._pending.values())
+            closing = list(self._closing.values())
+        for sink in todo:
+            self.finish(sink)
+        for done in closing:
+            done.wait(60.0)
 
 
 def sink_status(sink: Any) -> dict[str, Any]:
@@ -285,7 +308,7 @@ def run_tui(session: Session, **app_kwargs: Any) -> int:
     """Start the session, run the App in this terminal, and always stop the session."""
     from bench.tui.app import BenchApp
 
-    app = BenchApp(session, **app_kwargs)
+    app = BenchApp(session, handle_signals=True, **app_kwargs)
     session.start()
     try:
         code = app.run()

@@ -388,9 +388,8 @@ def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSe
     v = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, when / 1e6 - od.lag_s)
     speed = v.speed_mps
     if od.noise_mps:
-        speed = speed + od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(
-            len(m)
-        )
+        noise = od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
+        speed = np.where(speed == 0.0, 0.0, speed + noise)  # a wheel-pulse odometer at rest reads 0
     mm = np.clip(np.rint(speed * 1000.0), -(2**31), 2**31 - 1).astype(np.int64)
     ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
     counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)

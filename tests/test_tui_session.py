@@ -1,0 +1,74 @@
+"""The Recorder: the TUI's one sink that starts and stops MCAP files under a running runner."""
+
+from __future__ import annotations
+
+import threading
+
+from bench.pipeline import StepOutput
+from bench.tui.session import Recorder
+from protocol.frames import empty_frames
+from tests.test_tui_support import FakeSink
+
+
+class CountingSink(FakeSink):
+    def __init__(self, path: str) -> None:
+        super().__init__(path)
+        self.closes = 0
+
+    def close(self) -> None:
+        self.closes += 1
+        super().close()
+
+
+def step(n: int) -> StepOutput:
+    return StepOutput(frames=empty_frames(n))
+
+
+def test_a_stopped_file_gets_nothing_more_and_is_closed_once() -> None:
+    first = CountingSink("a.mcap")
+    rec = Recorder(lambda: CountingSink("b.mcap"), first)
+    rec.write(step(3))
+    old = rec.detach()
+    rec.write(step(5))  # between two files: goes nowhere
+    assert old is first and first.frames == 3 and not rec.active
+    rec.finish(old)
+    rec.finish(old)
+    assert first.closes == 1
+    assert rec.last_status is not None and rec.last_status["path"] == "a.mcap"
+    assert rec.start().name == "b.mcap"
+    rec.write(step(2))
+    rec.close()
+    assert [str(p) for p in rec.files] == ["a.mcap", "b.mcap"]
+
+
+def test_shutdown_closes_a_file_whose_close_has_not_run_yet() -> None:
+    first = CountingSink("a.mcap")
+    rec = Recorder(None, first)
+    old = rec.detach()
+    rec.close()  # the runner stopped before the UI's worker got to it
+    assert first.closes == 1
+    rec.finish(old)  # the late worker does nothing
+    assert first.closes == 1
+
+
+def test_shutdown_waits_for_a_close_in_progress() -> None:
+    release = threading.Event()
+
+    class SlowSink(CountingSink):
+        def close(self) -> None:
+            release.wait(5)
+            super().close()
+
+    slow = SlowSink("slow.mcap")
+    rec = Recorder(None, slow)
+    old = rec.detach()
+    worker = threading.Thread(target=rec.finish, args=(old,))
+    worker.start()
+    closer = threading.Thread(target=rec.close)
+    closer.start()
+    closer.join(0.2)
+    assert closer.is_alive()  # quitting waits for the file to be finished
+    release.set()
+    closer.join(5)
+    worker.join(5)
+    assert not closer.is_alive() and slow.closes == 1
