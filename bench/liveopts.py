@@ -76,8 +76,9 @@ def open_emulator(scenario_path: str | Path, speed: float = 1.0) -> LiveSetup:
 
     from devices.bus import CanBusSource
     from devices.emulator import load_scenario, start_virtual_board
+    from devices.emulator.scenario import resolve_scenario_path
 
-    path = Path(scenario_path)
+    path = resolve_scenario_path(scenario_path)  # a file, or a built-in name such as "demo"
     scenario = load_scenario(path)
     channel = f"acb3-emu-{os.getpid()}-{next(_emu_ids)}"
     bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)

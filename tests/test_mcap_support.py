@@ -71,7 +71,7 @@ def synthetic_stream(
             theta = math.radians(NOMINAL_ANGLES_DEG[ch - 1])
             accel = 0.05 * math.sin(2 * math.pi * 0.5 * (t - t0))  # the train, m/s^2
             a = accel * math.cos(theta) + G0 * math.sin(alpha + theta)  # ICD section 3
-            code = round(a / NOMINAL_SCALE + rng.normal(0, 30))
+            code = round(a / NOMINAL_SCALE + rng.normal(0, 3))
             status = 0
             if faults and rng.random() < 0.01:
                 status = int(rng.choice([1, 2, 4, 8]))

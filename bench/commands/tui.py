@@ -68,11 +68,6 @@ def run(args: argparse.Namespace) -> int:
 
             first = start_recording(Path(args.mcap), setup, config)
     else:
-        if args.emulate:
-            from devices.emulator.scenario import resolve_scenario_path
-
-            # a built-in name ("demo") must become its file: the log attaches the scenario
-            args.emulate = str(resolve_scenario_path(args.emulate))
         setup = open_live(args)
         try:
             first = open_recording(args, setup, config, warn=warn)

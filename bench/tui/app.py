@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import signal
 import threading
 from collections.abc import Iterable
@@ -90,6 +91,7 @@ class BenchApp(App[int]):
     ) -> None:
         super().__init__()
         self.handle_signals = handle_signals
+        self.hung_up = False
         self.session = session
         self.poll_hz = poll_hz
         self.window_s = window_s
@@ -138,7 +140,11 @@ class BenchApp(App[int]):
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGHUP):
             with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                loop.add_signal_handler(sig, lambda: self.call_later(self.action_quit))
+                loop.add_signal_handler(sig, self._on_signal, sig)
+
+    def _on_signal(self, sig: int) -> None:
+        self.hung_up = self.hung_up or sig == signal.SIGHUP
+        self.call_later(self.action_quit)
 
     def on_resize(self) -> None:
         """Wide terminals: let the per-pair panel and the plot share the width evenly."""
@@ -405,6 +411,10 @@ class BenchApp(App[int]):
 
     def on_session_stopped(self, message: SessionStopped) -> None:
         self.stop_error = message.error
+        if self.hung_up:
+            # The terminal is gone and Textual would wait forever to restore it; the run is
+            # stopped and every log file finished, so leave now.
+            os._exit(1 if message.error else 0)
         self.exit(1 if message.error else 0)
 
     # -- command palette ------------------------------------------------------------------
