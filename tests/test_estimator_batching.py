@@ -118,3 +118,22 @@ def test_scalar_and_vector_paths_are_twins() -> None:
     assert vector.tobytes() == scalar.tobytes()
     assert vector_ev.tobytes() == scalar_ev.tobytes()
     assert len(vector_ev) >= 4
+
+
+def test_stuck_detector_remembers_channels_across_a_batch_ending_with_them_missing():
+    """Regression: a batch ending on a sample without ch1/ch3 must not make their return
+    look like a first appearance (a 'change') in the next batch."""
+    from bench.fusion.isolation import StuckDetector
+
+    codes = np.tile(np.array([[5, 6, 7]]), (8, 1))
+    present = np.ones((8, 3), dtype=bool)
+    present[3] = [False, True, False]
+    ticks = np.arange(8) * 50
+    whole = StuckDetector(100).push(ticks, codes, present)
+    split = StuckDetector(100)
+    parts = [
+        split.push(ticks[:4], codes[:4], present[:4]),
+        split.push(ticks[4:], codes[4:], present[4:]),
+    ]
+    assert np.array_equal(np.concatenate(parts), whole)
+    assert not whole.any()  # nothing changes at all: nothing is stuck

@@ -29,7 +29,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "input", help="log file: .log (candump), .asc, .blf, .trc, .csv, .bin (UART), .mcap"
     )
-    p.add_argument("--config", help="calibration config (TOML); default: the ICD's nominal values")
+    p.add_argument(
+        "--config",
+        help="calibration config (TOML); default: the one recorded in an MCAP log, "
+        "else the ICD's nominal values",
+    )
     p.add_argument(
         "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
     )
@@ -45,12 +49,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from devices.files import open_log
 
+    console = Console(stderr=True)
     config = load_config(args.config)
+    if args.config is None and str(args.input).lower().endswith(".mcap"):
+        from bench.mcaplog.reader import recorded_config
+
+        recorded = recorded_config(args.input)
+        if recorded is not None:
+            config = recorded
+            if not args.quiet:
+                console.print(f"using the config recorded in the log ({recorded.source})")
     source = open_log(args.input)
     sinks = []
     if args.csv:
         sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]
-    console = Console(stderr=True)
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
     collect = bool(args.compare)

@@ -71,7 +71,7 @@ class StuckDetector:
             np.concatenate([np.array([self.changed]), stamps]), axis=0
         )[1:]
         self.changed = last_change[-1].tolist()
-        self.seen = have[-1].tolist()
+        self.seen = have.any(axis=0).tolist()  # ever seen, not "present in the last row"
         self.code = codes[np.maximum(last[-1] + 1, 0), np.arange(3)].tolist()
         quiet = ticks[:, None] - last_change >= self.window
         active = (~quiet).sum(axis=1, keepdims=True) - ~quiet  # other channels changing
