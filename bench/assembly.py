@@ -46,6 +46,8 @@ SAMPLE_DTYPE = np.dtype(
 )
 
 _NONE = np.iinfo(np.int64).min // 4
+MAX_BRIDGE_TICKS = 3600 / TICK_S
+"""Longest receive-time gap (1 h) trusted to count board-timestamp wraps across."""
 
 
 def _first_of_each(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -139,9 +141,12 @@ class Assembler:
 
         d = (ts - prev_ts) % TS_WRAP
         d = np.where(d >= TS_WRAP // 2, d - TS_WRAP, d)
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):
             dt_ticks = (tt - prev_t) / TICK_S
-            wraps = np.where(np.isfinite(dt_ticks), np.rint((dt_ticks - d) / TS_WRAP), 0.0)
+            # receive time bridges timestamp wraps only over plausible gaps: a corrupt or
+            # missing receive time (0, 1e15, NaN) must not throw the sample index away
+            plausible = np.isfinite(dt_ticks) & (np.abs(dt_ticks) <= MAX_BRIDGE_TICKS)
+            wraps = np.where(plausible, np.rint((dt_ticks - d) / TS_WRAP), 0.0)
         d = d + TS_WRAP * np.maximum(wraps, 0.0).astype(np.int64)
         est = np.rint(d / period).astype(np.int64)
         dc = (c - prev_c - est + COUNTER_WRAP // 2) % COUNTER_WRAP - COUNTER_WRAP // 2

@@ -210,3 +210,16 @@ def test_any_batching_gives_identical_samples_and_events(data):
     assert key(one_e) == key(by1_e) == key(cut_e)
     # output is in sample order with no sample emitted twice
     assert np.all(np.diff(one_s["n"]) > 0)
+
+
+def test_one_absurd_receive_time_costs_nothing():
+    """Receive time only bridges plausible gaps; 0, negative or 1e15 s are ignored for it."""
+    good = [f for k in range(20) for f in instant(k, t0=1.7e9)]
+    for bad_t in (1e15, -1.0, 0.0, float("nan")):
+        frames = list(good)
+        f = frames[30]
+        frames[30] = RawFrame(bad_t, f.can_id, f.data)
+        samples, events = assemble(frames)
+        assert samples["n"].tolist() == list(range(20)), bad_t
+        assert samples["present"].all()
+        assert len(kinds(events, EventKind.SAMPLES_LOST)) == 0

@@ -171,7 +171,8 @@ def _panel_text(app: Any, selector: str) -> str:
 
     widget = app.query_one(selector)
     strips = widget.render_lines(Region(0, 0, widget.size.width, widget.size.height))
-    return "".join("".join(seg.text for seg in strip) for strip in strips).replace(" ", "")
+    text = "".join("".join(seg.text for seg in strip) for strip in strips)
+    return re.sub(r"[\s\u2500-\u257f]", "", text)  # no spaces, no box-drawing border
 
 
 async def _until(cond: Any, timeout: float, what: str) -> None:

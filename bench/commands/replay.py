@@ -6,6 +6,7 @@ import argparse
 import sys
 
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import (
     BarColumn,
     DownloadColumn,
@@ -18,6 +19,9 @@ from bench.config import load_config
 from bench.errors import BenchError
 from bench.replay import CsvSink, replay
 from bench.summary import print_summary
+
+MAX_NOTICES = 20
+"""Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -90,8 +94,12 @@ def run(args: argparse.Namespace) -> int:
         for sink in sinks:
             sink.close()
         source.close()
-    for notice in outcome.notices:
-        console.print(f"[yellow]warning:[/] {notice}")
+    shown = outcome.notices[:MAX_NOTICES]
+    for notice in shown:
+        console.print(f"[yellow]warning:[/] {escape(notice)}")
+    if len(outcome.notices) > len(shown):
+        rest = len(outcome.notices) - len(shown)
+        console.print(f"[yellow]warning:[/] ... and {rest} more (see the summary counts)")
     if not args.quiet:
         print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=console)
     if args.compare:
