@@ -27,8 +27,21 @@ from bench.sinks import Sink
 from bench.stats import Stats
 from devices.base import LiveSource, SourceBatch
 
+MAX_COALESCE = 512
+"""Queued source batches merged into one pipeline step at most."""
 HISTORY = 60_000
 """Results kept for the UI (5 min at 200 Hz, 1 min at 1 kHz)."""
+
+
+def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
+    """One batch holding the parts' frames, link errors and notices, in arrival order."""
+    if len(parts) == 1:
+        return parts[0]
+    return SourceBatch(
+        np.concatenate([p.frames for p in parts]),
+        [e for p in parts for e in p.link_errors],
+        [n for p in parts for n in p.notices],
+    )
 
 
 @dataclass
@@ -148,11 +161,24 @@ class LiveRunner:
     def _process(self) -> None:
         dropped_seen = 0
         try:
-            while True:
+            end = False
+            while not end:
                 batch = self._queue.get()
                 if batch is None:
                     break
-                step = self.pipeline.process(batch)
+                # whatever else is waiting goes into the same step: the pipeline's output does
+                # not depend on batching, and a backlog then shrinks instead of growing
+                parts = [batch]
+                while len(parts) < MAX_COALESCE:
+                    try:
+                        more = self._queue.get_nowait()
+                    except queue.Empty:
+                        break
+                    if more is None:
+                        end = True
+                        break
+                    parts.append(more)
+                step = self.pipeline.process(merge_batches(parts))
                 if self.frames_dropped != dropped_seen:
                     lost = self.frames_dropped - dropped_seen
                     dropped_seen = self.frames_dropped
