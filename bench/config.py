@@ -15,6 +15,7 @@ from typing import Any
 
 from bench.errors import ConfigError
 from bench.textfile import read_text_file
+from bench.tomlcheck import error, is_integer, is_number, number_problem
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -96,21 +97,27 @@ class Config:
         return "\n".join(lines) + "\n"
 
 
-_NUM = (int, float)
-
-
-def _number(where: str, value: Any, *, positive: bool = False, integer: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int if integer else _NUM):
+def _number(
+    source: str,
+    path: str,
+    value: Any,
+    lo: float | None = None,
+    *,
+    lo_open: bool = False,
+    integer: bool = False,
+) -> float:
+    if not (is_integer(value) if integer else is_number(value)):
         kind = "an integer" if integer else "a number"
-        raise ConfigError(f"{where}: expected {kind}, got {value!r}")
-    if not math.isfinite(value):
-        raise ConfigError(f"{where}: must be finite, got {value!r}")
-    if positive and value <= 0:
-        raise ConfigError(f"{where}: must be > 0, got {value!r}")
+        raise error(source, path, f"expected {kind}, got {value!r}")
+    problem = number_problem(value, lo, lo_open=lo_open)
+    if problem:
+        raise error(source, path, problem)
     return value
 
 
 def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
+    # not tomlcheck.Table: the config's messages name Python types and the first unknown key
+    # in sorted order, and they stay as operators know them
     if not isinstance(value, dict):
         raise ConfigError(f"{where}: expected a table, got {type(value).__name__}")
     unknown = sorted(set(value) - allowed)
@@ -128,51 +135,45 @@ def config_from_dict(
     _table(source, data, {"board", "channels", "fusion", "estimator"})
     board = _table(f"{source}: board", data.get("board", {}), {"base_id", "sample_rate_hz"})
     base_id = int(
-        _number(f"{source}: board.base_id", board.get("base_id", DEFAULT_BASE), integer=True)
+        _number(source, "board.base_id", board.get("base_id", DEFAULT_BASE), integer=True)
     )
     if not 0 <= base_id <= 0x7FC or base_id <= 0x180 < base_id + 4:
-        raise ConfigError(f"{source}: board.base_id: 0x{base_id:X} is not a usable 11-bit base")
+        raise error(source, "board.base_id", f"0x{base_id:X} is not a usable 11-bit base")
     rate = int(
         _number(
-            f"{source}: board.sample_rate_hz",
+            source,
+            "board.sample_rate_hz",
             board.get("sample_rate_hz", DEFAULT_SAMPLE_RATE_HZ),
-            positive=True,
+            0,
+            lo_open=True,
             integer=True,
         )
     )
     chans = data.get("channels", [])
     if not isinstance(chans, list) or len(chans) not in (0, 3):
-        raise ConfigError(
-            f"{source}: channels: expected exactly three [[channels]] tables (ch1..ch3)"
-        )
+        raise error(source, "channels", "expected exactly three [[channels]] tables (ch1..ch3)")
     cals = []
     for i, default_angle in enumerate(NOMINAL_ANGLES_DEG):
+        where = f"channels[{i + 1}]"
         ch = _table(
-            f"{source}: channels[{i + 1}]",
-            chans[i] if chans else {},
-            {"angle_deg", "scale", "offset"},
+            f"{source}: {where}", chans[i] if chans else {}, {"angle_deg", "scale", "offset"}
         )
-        where = f"{source}: channels[{i + 1}]"
-        angle = _number(f"{where}.angle_deg", ch.get("angle_deg", default_angle))
+        angle = _number(source, f"{where}.angle_deg", ch.get("angle_deg", default_angle))
         if not -90.0 < angle < 90.0:
-            raise ConfigError(f"{where}.angle_deg: must lie in (-90, 90) deg, got {angle!r}")
-        scale = _number(f"{where}.scale", ch.get("scale", NOMINAL_SCALE), positive=True)
-        offset = _number(f"{where}.offset", ch.get("offset", 0.0))
+            raise error(source, f"{where}.angle_deg", f"must lie in (-90, 90) deg, got {angle!r}")
+        scale = _number(source, f"{where}.scale", ch.get("scale", NOMINAL_SCALE), 0, lo_open=True)
+        offset = _number(source, f"{where}.offset", ch.get("offset", 0.0))
         cals.append(ChannelCal(float(angle), float(scale), float(offset)))
     angles = [c.angle_deg for c in cals]
     if len(set(angles)) < 3:
-        raise ConfigError(
-            f"{source}: channels: the three angle_deg values must differ, got {angles}"
-        )
+        raise error(source, "channels", f"the three angle_deg values must differ, got {angles}")
     fusion = _table(f"{source}: fusion", data.get("fusion", {}), {"g", "tolerance_permil"})
-    g = _number(f"{source}: fusion.g", fusion.get("g", G0), positive=True)
-    tol = _number(f"{source}: fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0))
-    if tol < 0:
-        raise ConfigError(f"{source}: fusion.tolerance_permil: must be >= 0, got {tol!r}")
+    g = _number(source, "fusion.g", fusion.get("g", G0), 0, lo_open=True)
+    tol = _number(source, "fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0), 0)
     est_defaults = asdict(EstimatorSettings())
     est = _table(f"{source}: estimator", data.get("estimator", {}), set(est_defaults))
     est_values = {
-        k: float(_number(f"{source}: estimator.{k}", est.get(k, v), positive=True))
+        k: float(_number(source, f"estimator.{k}", est.get(k, v), 0, lo_open=True))
         for k, v in est_defaults.items()
     }
     return Config(

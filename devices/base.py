@@ -7,13 +7,17 @@ so the pipeline treats a live bus, a serial port and a log file alike.
 
 from __future__ import annotations
 
+import math
+import time
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from pathlib import Path
+from typing import BinaryIO, NamedTuple, TypeVar
 
 import numpy as np
 
+from bench.errors import BenchError
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 
@@ -59,6 +63,44 @@ class LiveSource(ABC):
         self.close()
 
 
+_Device = TypeVar("_Device")
+
+
+class Reconnector:
+    """When a live source whose device went away tries to reopen it (backoff).
+
+    After :meth:`dropped` the first attempt is due ``initial`` s later; each failed attempt
+    doubles the wait, up to ``maximum``; a successful one resets it.
+    """
+
+    def __init__(self, initial: float, maximum: float) -> None:
+        self.initial = initial
+        self.maximum = maximum
+        self._backoff = initial
+        self._next_attempt = 0.0
+
+    def dropped(self) -> None:
+        self._backoff = self.initial
+        self._next_attempt = time.monotonic() + self._backoff
+
+    def attempt(self, timeout: float, reopen: Callable[[], _Device]) -> _Device | None:
+        """Sleep until the next attempt is due (at most ``timeout``), then ``reopen()``: the
+        reopened device, or None when no attempt was due yet or it raised a BenchError."""
+        wait = self._next_attempt - time.monotonic()
+        if wait > 0:
+            time.sleep(min(wait, max(0.0, timeout)))
+            if wait > timeout:
+                return None
+        try:
+            device = reopen()
+        except BenchError:
+            self._backoff = min(self._backoff * 2, self.maximum)
+            self._next_attempt = time.monotonic() + self._backoff
+            return None
+        self._backoff = self.initial
+        return device
+
+
 class FileSource(ABC):
     """A recorded log read as a sequence of batches in file order."""
 
@@ -77,3 +119,33 @@ class FileSource(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
+
+
+def cannot_read(path: Path, exc: OSError) -> BenchError:
+    return BenchError(f"cannot read log {path}: {exc.strerror or exc}")
+
+
+class DiskFileSource(FileSource):
+    """A log file on disk, read front to back: its size when opened and the bytes consumed
+    so far (``_size``, ``_pos``) drive the progress bar."""
+
+    path: Path
+    _size = 0
+    _pos = 0
+
+    def size_bytes(self) -> int:
+        return self._size
+
+    def position(self) -> int:
+        return self._pos
+
+    def _open_binary(self) -> BinaryIO:
+        try:
+            return self.path.open("rb")
+        except OSError as exc:
+            raise cannot_read(self.path, exc) from exc
+
+    def _read_failed(self, exc: OSError) -> SourceBatch:
+        """The last batch of a stream whose read failed part way."""
+        detail = f"{self.path}: read failed after {self._pos} bytes: {exc}"
+        return SourceBatch(notices=[SourceNotice(math.nan, "truncated", detail)])

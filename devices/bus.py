@@ -18,7 +18,7 @@ import can
 import numpy as np
 
 from bench.errors import BenchError
-from devices.base import LiveSource, SourceBatch, SourceNotice
+from devices.base import LiveSource, Reconnector, SourceBatch, SourceNotice
 from protocol.frames import FRAME_DTYPE
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 
@@ -165,10 +165,7 @@ class CanBusSource(LiveSource):
         **kwargs: Any,
     ) -> None:
         self.burst_limit = max(1, int(burst_limit))
-        self.backoff_initial = backoff_initial
-        self.backoff_max = backoff_max
-        self._backoff = backoff_initial
-        self._next_attempt = 0.0
+        self.reconnector = Reconnector(backoff_initial, backoff_max)
         self._closed = False
         self._config: dict[str, Any] | None
         if bus is not None:
@@ -226,8 +223,7 @@ class CanBusSource(LiveSource):
 
     def _drop_bus(self) -> None:
         bus, self._bus = self._bus, None
-        self._backoff = self.backoff_initial
-        self._next_attempt = time.monotonic() + self._backoff
+        self.reconnector.dropped()
         if bus is not None and self._owns_bus:
             # the adapter is already gone; a failing shutdown has nothing left to report
             with contextlib.suppress(Exception):
@@ -235,21 +231,13 @@ class CanBusSource(LiveSource):
 
     def _reconnect(self, timeout: float) -> SourceBatch:
         """Sleep until the next attempt is due (at most ``timeout``), then try to reopen."""
-        if self._config is None:  # a bus we were handed cannot be rebuilt here
+        config = self._config
+        if config is None:  # a bus we were handed cannot be rebuilt here
             time.sleep(max(0.0, timeout))
             return SourceBatch()
-        wait = self._next_attempt - time.monotonic()
-        if wait > 0:
-            time.sleep(min(wait, max(0.0, timeout)))
-            if wait > timeout:
-                return SourceBatch()
-        try:
-            self._bus = open_bus(self._config)
-        except BenchError:
-            self._backoff = min(self._backoff * 2, self.backoff_max)
-            self._next_attempt = time.monotonic() + self._backoff
+        self._bus = self.reconnector.attempt(timeout, lambda: open_bus(config))
+        if self._bus is None:
             return SourceBatch()
-        self._backoff = self.backoff_initial
         return SourceBatch(notices=[SourceNotice(time.time(), "reconnect", self.description)])
 
     def close(self) -> None:

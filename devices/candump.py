@@ -30,8 +30,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from bench.errors import BenchError
-from devices.base import FileSource, SourceBatch, SourceNotice
+from devices.base import DiskFileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
@@ -413,7 +412,7 @@ def read_candump(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[SourceN
     return (np.concatenate(parts) if parts else empty_frames()), notices
 
 
-class CandumpFileSource(FileSource):
+class CandumpFileSource(DiskFileSource):
     """A candump ``.log`` as batches; counts lines, frames and parse errors as it goes."""
 
     def __init__(self, path: str | os.PathLike[str], chunk_bytes: int = CHUNK_BYTES) -> None:
@@ -425,34 +424,22 @@ class CandumpFileSource(FileSource):
             with self.path.open("rb"):
                 pass
         except OSError as exc:
-            raise BenchError(f"cannot read log {self.path}: {exc.strerror or exc}") from exc
-        self._pos = 0
+            raise cannot_read(self.path, exc) from exc
         self.lines = 0
         self.frames = 0
         self.parse_errors = 0
 
-    def size_bytes(self) -> int:
-        return self._size
-
-    def position(self) -> int:
-        return self._pos
-
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         max_frames = max(1, int(max_frames))
         self._pos = self.lines = self.frames = self.parse_errors = 0
-        try:
-            f = self.path.open("rb")
-        except OSError as exc:
-            raise BenchError(f"cannot read log {self.path}: {exc.strerror or exc}") from exc
-        with f:
+        with self._open_binary() as f:
             carry = b""
             skipping = False  # inside an overlong line that was already reported
             while True:
                 try:
                     chunk = f.read(self.chunk_bytes)
                 except OSError as exc:
-                    detail = f"{self.path}: read failed after {self._pos} bytes: {exc}"
-                    yield SourceBatch(notices=[SourceNotice(math.nan, "truncated", detail)])
+                    yield self._read_failed(exc)
                     return
                 eof = not chunk
                 data, carry = carry + chunk, b""

@@ -28,7 +28,7 @@ import numpy as np
 from can.io.blf import OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
 
 from bench.errors import BenchError
-from devices.base import FileSource, SourceBatch, SourceNotice
+from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
 from devices.candump import CandumpFileSource
 from protocol.frames import empty_frames
@@ -50,7 +50,7 @@ def _check_readable(path: Path) -> int:
     except FileNotFoundError as exc:
         raise BenchError(f"log file not found: {path}") from exc
     except OSError as exc:
-        raise BenchError(f"cannot read log {path}: {exc.strerror or exc}") from exc
+        raise cannot_read(path, exc) from exc
     return size
 
 
@@ -118,7 +118,7 @@ _TRUNCATION_ERRORS = (struct.error, EOFError, zlib.error, BLFParseError)
 """Reader failures that mean the file ends (or breaks) early rather than bad text."""
 
 
-class CanLogReaderSource(FileSource):
+class CanLogReaderSource(DiskFileSource):
     """A .asc/.blf/.trc/.csv log through python-can's readers, in batches of frames."""
 
     def __init__(self, path: str | os.PathLike[str], **reader_kwargs: Any) -> None:
@@ -126,7 +126,6 @@ class CanLogReaderSource(FileSource):
         self.description = f"{self.path.suffix.lstrip('.')} log {self.path}"
         self._size = _check_readable(self.path)
         self._kwargs = {**_READER_DEFAULTS.get(self.path.suffix.lower(), {}), **reader_kwargs}
-        self._pos = 0
         self.frames = 0
         self._reader: can.io.generic.MessageReader | None = self._open()
 
@@ -139,12 +138,6 @@ class CanLogReaderSource(FileSource):
             return can.LogReader(self.path, **self._kwargs)
         except Exception as exc:  # python-can raises struct.error, ValueError, Unicode...
             raise BenchError(f"cannot read log {self.path}: {one_line(exc)}") from exc
-
-    def size_bytes(self) -> int:
-        return self._size
-
-    def position(self) -> int:
-        return self._pos
 
     def _tell(self, reader: can.io.generic.MessageReader) -> None:
         f = getattr(reader, "file", None)
@@ -197,7 +190,7 @@ class CanLogReaderSource(FileSource):
             self._reader = None
 
 
-class UartCaptureSource(FileSource):
+class UartCaptureSource(DiskFileSource):
     """A raw UART capture (.bin): the byte stream the board sent, decoded in large chunks.
 
     Chunks are cut after their last 0x00 so no packet straddles two decodes; the result is
@@ -209,33 +202,21 @@ class UartCaptureSource(FileSource):
         self.description = f"UART capture {self.path}"
         self._size = _check_readable(self.path)
         self.chunk_bytes = max(1, int(chunk_bytes))
-        self._pos = 0
         self.frames = 0
         self.link_errors = 0
-
-    def size_bytes(self) -> int:
-        return self._size
-
-    def position(self) -> int:
-        return self._pos
 
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         max_frames = max(1, int(max_frames))
         self._pos = self.frames = self.link_errors = 0
         nan = math.nan
-        try:
-            f = self.path.open("rb")
-        except OSError as exc:
-            raise BenchError(f"cannot read log {self.path}: {exc.strerror or exc}") from exc
-        with f:
+        with self._open_binary() as f:
             carry = b""
             discarding = False  # inside a runaway packet already reported
             while True:
                 try:
                     chunk = f.read(self.chunk_bytes)
                 except OSError as exc:
-                    detail = f"{self.path}: read failed after {self._pos} bytes: {exc}"
-                    yield SourceBatch(notices=[SourceNotice(nan, "truncated", detail)])
+                    yield self._read_failed(exc)
                     return
                 if not chunk:
                     break

@@ -15,7 +15,7 @@ from typing import Any
 import serial
 
 from bench.errors import BenchError
-from devices.base import LiveSource, SourceBatch, SourceNotice
+from devices.base import LiveSource, Reconnector, SourceBatch, SourceNotice
 from devices.bus import one_line
 from protocol.frames import empty_frames, frames_from_raw
 from protocol.records import LinkError, RawFrame
@@ -61,10 +61,7 @@ class SerialSource(LiveSource):
     ) -> None:
         self.port_name = port
         self.baudrate = int(baudrate)
-        self.backoff_initial = backoff_initial
-        self.backoff_max = backoff_max
-        self._backoff = backoff_initial
-        self._next_attempt = 0.0
+        self.reconnector = Reconnector(backoff_initial, backoff_max)
         self._serial_kwargs = serial_kwargs
         self._closed = False
         self._timeout: float | None = 0.0
@@ -116,26 +113,18 @@ class SerialSource(LiveSource):
     def _drop_port(self) -> None:
         port, self._port = self._port, None
         self._timeout = None
-        self._backoff = self.backoff_initial
-        self._next_attempt = time.monotonic() + self._backoff
+        self.reconnector.dropped()
         if port is not None:
             with contextlib.suppress(Exception):  # already gone
                 port.close()
 
     def _reconnect(self, timeout: float) -> SourceBatch:
-        wait = self._next_attempt - time.monotonic()
-        if wait > 0:
-            time.sleep(min(wait, max(0.0, timeout)))
-            if wait > timeout:
-                return SourceBatch()
-        try:
-            self._port = open_serial(self.port_name, self.baudrate, **self._serial_kwargs)
-        except BenchError:
-            self._backoff = min(self._backoff * 2, self.backoff_max)
-            self._next_attempt = time.monotonic() + self._backoff
+        self._port = self.reconnector.attempt(
+            timeout, lambda: open_serial(self.port_name, self.baudrate, **self._serial_kwargs)
+        )
+        if self._port is None:
             return SourceBatch()
         self._timeout = 0.0
-        self._backoff = self.backoff_initial
         return SourceBatch(notices=[SourceNotice(time.time(), "reconnect", self.description)])
 
     def close(self) -> None:

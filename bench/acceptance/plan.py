@@ -10,7 +10,6 @@ The format is documented in docs/ACCEPTANCE.md.
 
 from __future__ import annotations
 
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +19,7 @@ from bench.acceptance.checks import KINDS, CheckSpec, Param
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
 from bench.textfile import read_text_file
+from bench.tomlcheck import Table, tname
 
 PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
 """The plan library shipped with the bench (``bench/plans/*.toml``)."""
@@ -79,199 +79,112 @@ class Plan:
 # --------------------------------------------------------------------------- helpers
 
 
-def _tname(v: Any) -> str:
-    return {
-        bool: "boolean",
-        int: "integer",
-        float: "number",
-        str: "string",
-        list: "array",
-        dict: "table",
-    }.get(type(v), type(v).__name__)
-
-
-class _Where:
-    """Error messages that name the file and the key."""
-
-    def __init__(self, file: str) -> None:
-        self.file = file
-
-    def error(self, where: str, msg: str) -> ConfigError:
-        return ConfigError(f"{self.file}: {where}: {msg}")
-
-    def table(self, where: str, value: Any, allowed: tuple[str, ...]) -> dict[str, Any]:
-        if not isinstance(value, dict):
-            raise self.error(where, f"expected a table, got {_tname(value)}")
-        for key in value:
-            if key not in allowed:
-                raise self.error(
-                    f"{where}.{key}" if where else key,
-                    f"unknown key (expected one of: {', '.join(sorted(allowed))})",
-                )
-        return value
-
-    def number(
-        self,
-        where: str,
-        v: Any,
-        lo: float | None = None,
-        hi: float | None = None,
-        *,
-        lo_open: bool = False,
-    ) -> float:
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise self.error(where, f"expected a number, got {_tname(v)} {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise self.error(where, f"must be finite, got {v!r}")
-        if lo is not None and (v <= lo if lo_open else v < lo):
-            raise self.error(where, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-        if hi is not None and v > hi:
-            raise self.error(where, f"must be <= {hi:g}, got {v!r}")
-        return v
-
-    def integer(self, where: str, v: Any, lo: float | None = None, hi: float | None = None) -> int:
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(where, f"expected an integer, got {_tname(v)} {v!r}")
-        if lo is not None and v < lo:
-            raise self.error(where, f"must be >= {lo:g}, got {v!r}")
-        if hi is not None and v > hi:
-            raise self.error(where, f"must be <= {hi:g}, got {v!r}")
-        return v
-
-    def text(self, where: str, v: Any) -> str:
-        if not isinstance(v, str):
-            raise self.error(where, f"expected a string, got {_tname(v)} {v!r}")
-        return v
-
-    def choice(self, where: str, v: Any, choices: tuple[Any, ...]) -> Any:
-        if isinstance(v, bool) or v not in choices:
-            shown = ", ".join(repr(c) for c in choices)
-            raise self.error(where, f"{v!r} is not one of {shown}")
-        return v
-
-
-def _param(w: _Where, where: str, p: Param, v: Any) -> Any:
+def _param(t: Table, key: str, p: Param) -> Any:
     if p.type == "number":
-        return w.number(where, v, p.lo, p.hi)
+        return t.num(key, lo=p.lo, hi=p.hi)
     if p.type == "integer":
-        return w.integer(where, v, p.lo, p.hi)
+        return t.integer(key, lo=p.lo, hi=p.hi)
     if p.type == "bool":
-        if not isinstance(v, bool):
-            raise w.error(where, f"expected true or false, got {_tname(v)} {v!r}")
-        return v
+        return t.flag(key)
     if p.type == "choice":
-        return w.choice(where, v, p.choices)
+        return t.choice(key, choices=p.choices)
     if p.type == "events":
+        v = t.raw(key)
         items = [v] if isinstance(v, str) else v
         if not isinstance(items, list) or not items:
-            raise w.error(where, f"expected a non-empty array of event names, got {v!r}")
+            raise t.error(key, f"expected a non-empty array of event names, got {v!r}")
         for item in items:
             if not isinstance(item, str) or item.upper() not in p.choices:
-                raise w.error(
-                    where, f"unknown event {item!r} (expected names from {', '.join(p.choices)})"
+                raise t.error(
+                    key, f"unknown event {item!r} (expected names from {', '.join(p.choices)})"
                 )
         return tuple(dict.fromkeys(i.upper() for i in items))
-    return w.text(where, v)  # pragma: no cover - every Param type is handled above
+    return t.text(key)  # pragma: no cover - every Param type is handled above
 
 
 # --------------------------------------------------------------------------- sections
 
 
-def _steps(w: _Where, items: Any) -> tuple[Step, ...]:
-    if not isinstance(items, list):
-        raise w.error("steps", f"expected an array of tables ([[steps]]), got {_tname(items)}")
+def _steps(top: Table) -> tuple[Step, ...]:
     out = []
-    for i, item in enumerate(items, 1):
-        where = f"steps[{i}]"
-        t = w.table(where, item, _STEP_KEYS)
+    for i, item in enumerate(top.array("steps"), 1):
+        t = Table(top.file, f"steps[{i}]", item)
+        t.done(_STEP_KEYS)
         for key in ("prompt", "gradient_permil"):
-            if key not in t:
-                raise w.error(f"{where}.{key}", "missing (every step needs it)")
-        at = t.get("at_s")
+            t.require(key, "every step needs it")
         out.append(
             Step(
                 index=i,
-                prompt=w.text(f"{where}.prompt", t["prompt"]),
-                gradient_permil=w.number(
-                    f"{where}.gradient_permil", t["gradient_permil"], -500, 500
-                ),
-                settle_s=w.number(f"{where}.settle_s", t.get("settle_s", 2.0), 0.0, 3600.0),
-                measure_s=w.number(
-                    f"{where}.measure_s", t.get("measure_s", 5.0), 0.0, 3600.0, lo_open=True
-                ),
-                at_s=None if at is None else w.number(f"{where}.at_s", at, 0.0),
+                prompt=t.text("prompt"),
+                gradient_permil=t.num("gradient_permil", lo=-500, hi=500),
+                settle_s=t.num("settle_s", 2.0, 0.0, 3600.0),
+                measure_s=t.num("measure_s", 5.0, 0.0, 3600.0, lo_open=True),
+                at_s=t.num("at_s", lo=0.0) if t.has("at_s") else None,
             )
         )
     return tuple(out)
 
 
-def _checks(w: _Where, items: Any) -> tuple[CheckSpec, ...]:
+def _checks(top: Table) -> tuple[CheckSpec, ...]:
+    items = top.raw("checks")
     if not isinstance(items, list) or not items:
-        raise w.error("checks", "a plan needs at least one [[checks]] table")
+        raise top.error("checks", "a plan needs at least one [[checks]] table")
     out = []
     names: dict[str, int] = {}
     for i, item in enumerate(items, 1):
-        where = f"checks[{i}]"
-        if not isinstance(item, dict):
-            raise w.error(where, f"expected a table, got {_tname(item)}")
-        if "kind" not in item:
-            raise w.error(f"{where}.kind", f"missing (one of {', '.join(KINDS)})")
-        kind = item["kind"]
+        t = Table(top.file, f"checks[{i}]", item)
+        t.require("kind", f"one of {', '.join(KINDS)}")
+        kind = t.raw("kind")
         if not isinstance(kind, str) or kind not in KINDS:
-            raise w.error(
-                f"{where}.kind", f"unknown check kind {kind!r} (expected one of {', '.join(KINDS)})"
+            raise t.error(
+                "kind", f"unknown check kind {kind!r} (expected one of {', '.join(KINDS)})"
             )
         spec = KINDS[kind]
-        t = w.table(where, item, (*_CHECK_COMMON, *spec.params))
+        t.done((*_CHECK_COMMON, *spec.params))
         params: dict[str, Any] = {}
         for key, p in spec.params.items():
-            if key in t:
-                params[key] = _param(w, f"{where}.{key}", p, t[key])
+            if t.has(key):
+                params[key] = _param(t, key, p)
             elif p.required:
-                raise w.error(f"{where}.{key}", f"missing (a {kind} check needs it)")
+                raise t.error(key, f"missing (a {kind} check needs it)")
         lim = spec.limit
         if lim.warn_key and lim.warn_key in params:
             warn, limit = params[lim.warn_key], params[lim.key]
             if (warn > limit) if lim.upper else (warn < limit):
                 rel = "<=" if lim.upper else ">="
-                raise w.error(
-                    f"{where}.{lim.warn_key}",
+                raise t.error(
+                    lim.warn_key,
                     f"the warning limit must be {rel} {lim.key} ({limit!r}), got {warn!r}",
                 )
-        name = w.text(f"{where}.name", t.get("name", f"{kind} #{i}")).strip()
+        name = t.text("name", f"{kind} #{i}").strip()
         if not name:
-            raise w.error(f"{where}.name", "must not be empty")
+            raise t.error("name", "must not be empty")
         if name in names:
-            raise w.error(f"{where}.name", f"{name!r} is already the name of checks[{names[name]}]")
+            raise t.error("name", f"{name!r} is already the name of checks[{names[name]}]")
         names[name] = i
-        from_s = t.get("from_s")
-        to_s = t.get("to_s")
-        from_s = None if from_s is None else w.number(f"{where}.from_s", from_s, 0.0)
-        to_s = None if to_s is None else w.number(f"{where}.to_s", to_s, 0.0, lo_open=True)
+        from_s = t.num("from_s", lo=0.0) if t.has("from_s") else None
+        to_s = t.num("to_s", lo=0.0, lo_open=True) if t.has("to_s") else None
         if from_s is not None and to_s is not None and to_s <= from_s:
-            raise w.error(f"{where}.to_s", f"must be > from_s ({from_s:g}), got {to_s!r}")
-        expect = t.get("expect")
-        if expect is not None:
-            expect = w.choice(f"{where}.expect", expect, CHECK_EXPECTS)
+            raise t.error("to_s", f"must be > from_s ({from_s:g}), got {to_s!r}")
+        expect = t.choice("expect", choices=CHECK_EXPECTS) if t.has("expect") else None
         out.append(CheckSpec(i, name, kind, params, from_s, to_s, expect))
     return tuple(out)
 
 
-def _cross_checks(w: _Where, plan: Plan) -> None:
+def _cross_checks(top: Table, plan: Plan) -> None:
     """What only the whole plan can tell: a check that needs truth, steps or a fault."""
     sc = plan.scenario
     for c in plan.checks:
         where = f"checks[{c.index}]"
         kind = KINDS[c.kind]
         if kind.needs_truth and sc is None:
-            raise w.error(
+            raise top.error(
                 f"{where}.kind", f"a {c.kind} check needs emulator truth: the plan has no scenario"
             )
         if kind.needs_steps and not plan.steps:
-            raise w.error(f"{where}.kind", f"a {c.kind} check needs [[steps]]: the plan has none")
+            raise top.error(f"{where}.kind", f"a {c.kind} check needs [[steps]]: the plan has none")
         if sc is not None and c.from_s is not None and c.from_s >= sc.duration_s:
-            raise w.error(
+            raise top.error(
                 f"{where}.from_s", f"must be < the scenario's duration_s ({sc.duration_s:g})"
             )
         if (
@@ -279,25 +192,25 @@ def _cross_checks(w: _Where, plan: Plan) -> None:
             and c.get("step") is not None
             and c.get("step") > len(plan.steps)
         ):
-            raise w.error(f"{where}.step", f"the plan has {len(plan.steps)} steps")
+            raise top.error(f"{where}.step", f"the plan has {len(plan.steps)} steps")
         if c.kind == "fault_detected":
-            _check_fault_target(w, where, c, sc)
+            _check_fault_target(top, where, c, sc)
 
 
-def _check_fault_target(w: _Where, where: str, c: CheckSpec, sc: Any) -> None:
+def _check_fault_target(top: Table, where: str, c: CheckSpec, sc: Any) -> None:
     from devices.emulator.faults import target_channels
 
     index, channel = c.get("fault"), c.get("channel")
     faults = list(sc.faults)
     if index is not None:
         if index > len(faults):
-            raise w.error(f"{where}.fault", f"the scenario has {len(faults)} [[faults]]")
+            raise top.error(f"{where}.fault", f"the scenario has {len(faults)} [[faults]]")
         faults = [faults[index - 1]]
     chans = [set(target_channels(f)) for f in faults]
     if channel is not None and not any(channel in s for s in chans):
-        raise w.error(f"{where}.channel", f"no scenario fault targets channel {channel}")
+        raise top.error(f"{where}.channel", f"no scenario fault targets channel {channel}")
     if not any(chans):
-        raise w.error(f"{where}.kind", "no scenario fault targets an ADC channel to detect")
+        raise top.error(f"{where}.kind", "no scenario fault targets an ADC channel to detect")
 
 
 def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
@@ -318,12 +231,12 @@ def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
     return config_from_dict(merged, source=f"{source}: config")
 
 
-def _scenario(w: _Where, value: Any, plan_dir: Path | None) -> tuple[Any, dict | None, str | None]:
+def _scenario(top: Table, value: Any, plan_dir: Path | None) -> tuple[Any, dict | None, str | None]:
     from devices.emulator import load_scenario, scenario_from_dict
     from devices.emulator.scenario import resolve_scenario_path
 
     if isinstance(value, dict):
-        return scenario_from_dict(value, source=f"{w.file}: scenario"), value, None
+        return scenario_from_dict(value, source=f"{top.file}: scenario"), value, None
     if isinstance(value, str):
         p = Path(value)
         if plan_dir is not None and not p.is_absolute() and (plan_dir / p).exists():
@@ -331,10 +244,10 @@ def _scenario(w: _Where, value: Any, plan_dir: Path | None) -> tuple[Any, dict |
         try:
             path = resolve_scenario_path(p)
         except ConfigError as exc:
-            raise w.error("scenario", str(exc)) from None
+            raise top.error("scenario", str(exc)) from None
         sc = load_scenario(path)
         return sc, tomllib.loads(read_text_file(path, "scenario")), str(path)
-    raise w.error("scenario", f"expected a [scenario] table or a file name, got {_tname(value)}")
+    raise top.error("scenario", f"expected a [scenario] table or a file name, got {tname(value)}")
 
 
 # --------------------------------------------------------------------------- entry points
@@ -342,55 +255,53 @@ def _scenario(w: _Where, value: Any, plan_dir: Path | None) -> tuple[Any, dict |
 
 def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Plan:
     """Validate plan TOML text into a Plan; ConfigError naming ``file`` and the key."""
-    w = _Where(file)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{file}: not valid TOML: {exc}") from None
-    w.table("", data, _TOP)
-    if "plan" not in data:
-        raise w.error("plan", 'missing [plan] table (it states at least expect = "pass"|"fail")')
-    head = w.table("plan", data["plan"], _PLAN_KEYS)
-    if "expect" not in head:
-        raise w.error("plan.expect", 'missing ("pass" or "fail": the verdict this plan is for)')
+    top = Table(file, "", data)
+    top.done(_TOP)
+    if not top.has("plan"):
+        raise top.error("plan", 'missing [plan] table (it states at least expect = "pass"|"fail")')
+    head = Table(file, "plan", data["plan"])
+    head.done(_PLAN_KEYS)
+    head.require("expect", '"pass" or "fail": the verdict this plan is for')
     default_name = path.stem if path is not None else "plan"
-    dur = head.get("duration_s")
     scenario, sc_data, sc_ref = (None, None, None)
-    if "scenario" in data:
-        scenario, sc_data, sc_ref = _scenario(w, data["scenario"], path.parent if path else None)
-    overlay = w.table(
-        "config", data.get("config", {}), ("board", "channels", "fusion", "estimator")
-    )
+    if top.has("scenario"):
+        scenario, sc_data, sc_ref = _scenario(top, data["scenario"], path.parent if path else None)
+    overlay = Table(file, "config", data.get("config", {}))
+    overlay.done(("board", "channels", "fusion", "estimator"))
     plan = Plan(
-        name=w.text("plan.name", head.get("name", default_name)),
-        title=w.text("plan.title", head.get("title", "")),
-        expect=w.choice("plan.expect", head["expect"], EXPECTS),
+        name=head.text("name", default_name),
+        title=head.text("title", ""),
+        expect=head.choice("expect", choices=EXPECTS),
         path=path,
         text=text,
-        checks=_checks(w, data.get("checks")),
-        steps=_steps(w, data.get("steps", [])),
+        checks=_checks(top),
+        steps=_steps(top),
         scenario=scenario,
         scenario_data=sc_data,
         scenario_ref=sc_ref,
-        config_overlay=overlay,
-        link=w.choice("plan.link", head.get("link", "can"), LINKS),
-        duration_s=None if dur is None else w.number("plan.duration_s", dur, 0.0, lo_open=True),
+        config_overlay=overlay.data,
+        link=head.choice("link", "can", choices=LINKS),
+        duration_s=head.num("duration_s", lo=0.0, lo_open=True) if head.has("duration_s") else None,
         file=file,
     )
     if scenario is None and not plan.steps and plan.duration_s is None:
-        raise w.error(
+        raise top.error(
             "plan", "needs a [scenario], [[steps]] or plan.duration_s to know what to run"
         )
     failing = [c.name for c in plan.checks if c.expect == "fail"]
     if plan.expect == "fail" and not failing:
-        raise w.error(
-            "plan.expect", '"fail", but no check says expect = "fail" (which one is meant to?)'
+        raise head.error(
+            "expect", '"fail", but no check says expect = "fail" (which one is meant to?)'
         )
     if plan.expect == "pass" and failing:
-        raise w.error("plan.expect", f'"pass", but check {failing[0]!r} says expect = "fail"')
-    if overlay or scenario is not None:
+        raise head.error("expect", f'"pass", but check {failing[0]!r} says expect = "fail"')
+    if overlay.data or scenario is not None:
         plan.config()  # validate the overlay now, naming its key
-    _cross_checks(w, plan)
+    _cross_checks(top, plan)
     return plan
 
 

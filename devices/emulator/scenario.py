@@ -20,6 +20,7 @@ from typing import Any
 
 from bench.errors import ConfigError
 from bench.textfile import read_text_file
+from bench.tomlcheck import Table, is_integer
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -166,109 +167,11 @@ class Scenario:
 # --------------------------------------------------------------------------- validation
 
 
-class _Table:
-    """Typed, range-checked access to one TOML table; :meth:`done` rejects unknown keys."""
-
-    def __init__(self, file: str, where: str, value: Any) -> None:
-        self.file = file
-        self.where = where
-        if not isinstance(value, dict):
-            raise self.error("", f"expected a table, got {_tname(value)}")
-        self.data: dict[str, Any] = value
-        self.used: set[str] = set()
-
-    def path(self, key: str) -> str:
-        if not key:
-            return self.where or "(top level)"
-        return f"{self.where}.{key}" if self.where else key
-
-    def error(self, key: str, msg: str) -> ConfigError:
-        return ConfigError(f"{self.file}: {self.path(key)}: {msg}")
-
-    def has(self, key: str) -> bool:
-        return key in self.data
-
-    def raw(self, key: str, default: Any = None) -> Any:
-        self.used.add(key)
-        return self.data.get(key, default)
-
-    def num(
-        self,
-        key: str,
-        default: float,
-        lo: float | None = None,
-        hi: float | None = None,
-        *,
-        lo_open: bool = False,
-    ) -> float:
-        v = self.raw(key, default)
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise self.error(key, f"expected a number, got {_tname(v)} {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise self.error(key, f"must be finite, got {v!r}")
-        _check_range(self, key, v, lo, hi, lo_open)
-        return v
-
-    def integer(self, key: str, default: int, lo: int | None = None, hi: int | None = None) -> int:
-        v = self.raw(key, default)
-        if isinstance(v, bool) or not isinstance(v, int):
-            raise self.error(key, f"expected an integer, got {_tname(v)} {v!r}")
-        _check_range(self, key, v, lo, hi, False)
-        return v
-
-    def flag(self, key: str, default: bool) -> bool:
-        v = self.raw(key, default)
-        if not isinstance(v, bool):
-            raise self.error(key, f"expected true or false, got {_tname(v)} {v!r}")
-        return v
-
-    def text(self, key: str, default: str) -> str:
-        v = self.raw(key, default)
-        if not isinstance(v, str):
-            raise self.error(key, f"expected a string, got {_tname(v)} {v!r}")
-        return v
-
-    def done(self, allowed: tuple[str, ...] | None = None) -> None:
-        names = sorted(allowed if allowed is not None else self.used)
-        for key in self.data:
-            if key not in names:
-                raise self.error(key, f"unknown key (expected one of: {', '.join(names)})")
-
-
-def _tname(v: Any) -> str:
-    return {
-        bool: "boolean",
-        int: "integer",
-        float: "number",
-        str: "string",
-        list: "array",
-        dict: "table",
-    }.get(type(v), type(v).__name__)
-
-
-def _check_range(
-    t: _Table, key: str, v: float, lo: float | None, hi: float | None, lo_open: bool
-) -> None:
-    if lo is not None and (v <= lo if lo_open else v < lo):
-        raise t.error(key, f"must be {'>' if lo_open else '>='} {lo:g}, got {v!r}")
-    if hi is not None and v > hi:
-        raise t.error(key, f"must be <= {hi:g}, got {v!r}")
-
-
-def _array(top: _Table, key: str) -> list[Any]:
-    v = top.raw(key, [])
-    if not isinstance(v, list):
-        raise top.error(key, f"expected an array of tables ([[{key}]]), got {_tname(v)}")
-    return v
-
-
 def _parse_track(file: str, items: list[Any]) -> tuple[TrackSegment, ...]:
     out = []
     for i, item in enumerate(items, 1):
-        t = _Table(file, f"track[{i}]", item)
-        if not t.has("length_m"):
-            raise t.error("length_m", "missing (every segment needs a length)")
+        t = Table(file, f"track[{i}]", item)
+        t.require("length_m", "every segment needs a length")
         length = t.num("length_m", 0.0, 0.0, 1e7, lo_open=True)
         grad = t.num("gradient_permil", 0.0, -500.0, 500.0)
         curve = t.num("vertical_curve_m", 0.0, 0.0, 1e4) if t.has("vertical_curve_m") else None
@@ -280,9 +183,8 @@ def _parse_track(file: str, items: list[Any]) -> tuple[TrackSegment, ...]:
 def _parse_train(file: str, items: list[Any]) -> tuple[TrainPhase, ...]:
     out = []
     for i, item in enumerate(items, 1):
-        t = _Table(file, f"train[{i}]", item)
-        if not t.has("duration_s"):
-            raise t.error("duration_s", "missing (every phase needs a duration)")
+        t = Table(file, f"train[{i}]", item)
+        t.require("duration_s", "every phase needs a duration")
         dur = t.num("duration_s", 0.0, 0.0, 1e6, lo_open=True)
         acc = t.num("accel_mps2", 0.0, -10.0, 10.0)
         rev = t.flag("allow_reverse", False)
@@ -301,7 +203,7 @@ def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
         )
     out = []
     for i, (item, nominal) in enumerate(zip(items, NOMINAL_ANGLES_DEG, strict=True), 1):
-        t = _Table(file, f"channels[{i}]", item)
+        t = Table(file, f"channels[{i}]", item)
         out.append(
             ChannelModel(
                 angle_deg=t.num("angle_deg", nominal, -90.0, 90.0),
@@ -321,7 +223,7 @@ def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
 
 
 def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
-    t = _Table(file, "board", value)
+    t = Table(file, "board", value)
     b = BoardModel(
         temperature_c=t.integer("temperature_c", 35, -128, 127),
         supply_v=t.num("supply_v", 24.0, 0.0, 25.5),
@@ -343,7 +245,7 @@ def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
 
 
 def _parse_odometer(file: str, value: Any) -> OdometerModel:
-    t = _Table(file, "odometer", value)
+    t = Table(file, "odometer", value)
     o = OdometerModel(
         time0_ticks=t.integer("time0_ticks", 0, 0, 65535),
         drift_ppm=t.num("drift_ppm", 0.0, -100_000.0, 100_000.0),
@@ -359,7 +261,7 @@ def _parse_odometer(file: str, value: Any) -> OdometerModel:
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
-def _status_bits(t: _Table, key: str) -> int:
+def _status_bits(t: Table, key: str) -> int:
     v = t.raw(key, FAULT_PARAMS["status"]["bits"])
     if isinstance(v, list):
         bits = 0
@@ -374,15 +276,14 @@ def _status_bits(t: _Table, key: str) -> int:
         if not bits:
             raise t.error(key, "names no bit")
         return bits
-    if isinstance(v, bool) or not isinstance(v, int):
+    if not is_integer(v):
         raise t.error(key, f"expected an integer 1..255 or a list of bit names, got {v!r}")
-    _check_range(t, key, v, 1, 255, False)
+    t.check_range(key, v, 1, 255)
     return v
 
 
-def _parse_target(t: _Table, kind: str) -> int | str:
-    if not t.has("channel"):
-        raise t.error("channel", "missing (1..3, or one of adc, status, speed, bus, uart)")
+def _parse_target(t: Table, kind: str) -> int | str:
+    t.require("channel", "1..3, or one of adc, status, speed, bus, uart")
     v = t.raw("channel")
     if kind in UART_KINDS:
         allowed: tuple[Any, ...] = ("uart",)
@@ -397,7 +298,7 @@ def _parse_target(t: _Table, kind: str) -> int | str:
 
 
 def _parse_fault(file: str, i: int, item: Any, duration: float) -> Fault:
-    t = _Table(file, f"faults[{i}]", item)
+    t = Table(file, f"faults[{i}]", item)
     kind = t.raw("kind")
     if kind is None:
         raise t.error("kind", f"missing (one of {', '.join(FAULT_KINDS)})")
@@ -467,7 +368,7 @@ _TOP_KEYS = (
 
 def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scenario:
     """Validate a parsed TOML document into a Scenario. Raises ConfigError naming the key."""
-    top = _Table(source, "", dict(data))
+    top = Table(source, "", dict(data))
     top.done(_TOP_KEYS)
     seed = top.integer("seed", 0, 0, (1 << 63) - 1)
     duration = top.num("duration_s", 60.0, 0.0, MAX_DURATION_S, lo_open=True)
@@ -489,14 +390,13 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         board_time0_ticks=top.integer("board_time0_ticks", 0, 0, 65535),
         start_time_s=top.num("start_time_s", 0.0, 0.0, 1e10),
         description=top.text("description", ""),
-        track=_parse_track(source, _array(top, "track")),
-        train=_parse_train(source, _array(top, "train")),
-        channels=_parse_channels(source, _array(top, "channels")),  # type: ignore[arg-type]
+        track=_parse_track(source, top.array("track")),
+        train=_parse_train(source, top.array("train")),
+        channels=_parse_channels(source, top.array("channels")),  # type: ignore[arg-type]
         board=_parse_board(source, top.raw("board", {}), rate),
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         faults=tuple(
-            _parse_fault(source, i, item, duration)
-            for i, item in enumerate(_array(top, "faults"), 1)
+            _parse_fault(source, i, item, duration) for i, item in enumerate(top.array("faults"), 1)
         ),
         source=source,
     )
