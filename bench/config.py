@@ -15,7 +15,7 @@ from typing import Any
 
 from bench.errors import ConfigError
 from bench.textfile import read_text_file
-from bench.tomlcheck import error, is_integer, is_number, number_problem
+from bench.tomlcheck import error, is_integer, is_number, number_problem, to_float
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -109,7 +109,7 @@ def _number(
     if not (is_integer(value) if integer else is_number(value)):
         kind = "an integer" if integer else "a number"
         raise error(source, path, f"expected {kind}, got {value!r}")
-    problem = number_problem(value, lo, lo_open=lo_open)
+    problem = number_problem(to_float(value), lo, lo_open=lo_open)
     if problem:
         raise error(source, path, problem)
     return value

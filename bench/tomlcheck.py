@@ -36,6 +36,15 @@ def is_number(v: Any) -> bool:
     return not isinstance(v, bool) and isinstance(v, int | float)
 
 
+def to_float(v: float) -> float:
+    """float(v), with integers too large for a float becoming an infinity (then rejected as
+    not finite) instead of raising OverflowError."""
+    try:
+        return float(v)
+    except OverflowError:
+        return math.inf if v > 0 else -math.inf
+
+
 def is_integer(v: Any) -> bool:
     return not isinstance(v, bool) and isinstance(v, int)
 
@@ -115,10 +124,11 @@ class Table:
         v = self.raw(key, default)
         if not is_number(v):
             raise self.error(key, f"expected a number, got {tname(v)} {v!r}")
-        problem = number_problem(float(v), lo, hi, lo_open=lo_open)
+        value = to_float(v)
+        problem = number_problem(value, lo, hi, lo_open=lo_open)
         if problem:
             raise self.error(key, problem)
-        return float(v)
+        return value
 
     def integer(
         self, key: str, default: int | None = None, lo: float | None = None, hi: float | None = None

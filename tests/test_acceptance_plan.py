@@ -214,3 +214,16 @@ def test_dump_toml_nested() -> None:
         "arr": [{"k": 1, "sub": {"z": "w"}}, {"k": 2}],
     }
     assert tomllib.loads(dump_toml(data)) == data
+
+
+def test_warning_band_without_its_limit_uses_the_limit_default(tmp_path):
+    """Regression: warn_count given, max_count left at its default, must not crash."""
+    from bench.acceptance.plan import load_plan
+
+    p = tmp_path / "p.toml"
+    p.write_text(
+        '[plan]\ntitle = "t"\nexpect = "pass"\n[scenario]\nduration_s = 1.0\n'
+        '[[checks]]\nkind = "event_count"\nevents = ["CRC_ERROR"]\nwarn_count = 0\n'
+    )
+    plan = load_plan(p)
+    assert plan.checks[0].params["warn_count"] == 0

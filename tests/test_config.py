@@ -41,7 +41,9 @@ def test_written_config_reads_back_equal(tmp_path):
     p = tmp_path / "c.toml"
     p.write_text(Config().to_toml())
     c = load_config(p)
-    assert c.channels == Config().channels and c.g == Config().g and c.estimator == Config().estimator
+    assert (
+        c.channels == Config().channels and c.g == Config().g and c.estimator == Config().estimator
+    )
 
 
 @pytest.mark.parametrize(
@@ -51,7 +53,10 @@ def test_written_config_reads_back_equal(tmp_path):
         ("[fusion]\ng = -9.8\n", "fusion.g"),
         ("[fusion]\ng = 'fast'\n", "fusion.g"),
         ("[[channels]]\nangle_deg = 1\n", "channels"),
-        ("[[channels]]\nangle_deg = 30\n[[channels]]\nangle_deg = 0\n[[channels]]\nangel = 3\n", "channels[3].angel"),
+        (
+            "[[channels]]\nangle_deg = 30\n[[channels]]\nangle_deg = 0\n[[channels]]\nangel = 3\n",
+            "channels[3].angel",
+        ),
         ("[[channels]]\nangle_deg = 95\n[[channels]]\n[[channels]]\n", "channels[1].angle_deg"),
         ("[board]\nbase_id = 0x180\n", "board.base_id"),
         ("[board]\nbase_id = 0x17E\n", "board.base_id"),
@@ -81,3 +86,10 @@ def test_cli_reports_bad_config_in_one_line_with_exit_2(tmp_path, capsys):
 def test_missing_config_file_is_a_clear_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot read config"):
         load_config(tmp_path / "nope.toml")
+
+
+def test_integer_too_large_for_a_float_is_a_one_line_error(tmp_path):
+    p = tmp_path / "big.toml"
+    p.write_text("[fusion]\ng = 1" + "0" * 400 + "\n")
+    with pytest.raises(ConfigError, match=r"big.toml: fusion.g: must be finite"):
+        load_config(p)

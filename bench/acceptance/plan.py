@@ -148,8 +148,9 @@ def _checks(top: Table) -> tuple[CheckSpec, ...]:
             elif p.required:
                 raise t.error(key, f"missing (a {kind} check needs it)")
         lim = spec.limit
-        if lim.warn_key and lim.warn_key in params:
-            warn, limit = params[lim.warn_key], params[lim.key]
+        limit = params.get(lim.key, spec.params[lim.key].default) if lim.key else None
+        if lim.warn_key and lim.warn_key in params and limit is not None:
+            warn = params[lim.warn_key]
             if (warn > limit) if lim.upper else (warn < limit):
                 rel = "<=" if lim.upper else ">="
                 raise t.error(
