@@ -46,8 +46,25 @@ SAMPLE_DTYPE = np.dtype(
 )
 
 _NONE = np.iinfo(np.int64).min // 4
+_ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
+_ERRORS = (
+    (int(Outcome.CRC_MISMATCH), EventKind.CRC_ERROR, "can_id"),
+    (int(Outcome.WRONG_DLC), EventKind.WRONG_DLC, "dlc"),
+    (int(Outcome.UNKNOWN_ID), EventKind.UNKNOWN_ID, "can_id"),
+)
 MAX_BRIDGE_TICKS = 3600 / TICK_S
 """Longest receive-time gap (1 h) trusted to count board-timestamp wraps across."""
+
+
+_NO_EVENTS = np.zeros(0, dtype=EVENT_DTYPE)
+
+
+def _isin(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.isin, without its fixed cost for the few keys of a live batch."""
+    if len(a) <= 16:
+        members = set(b.tolist())
+        return np.array([x in members for x in a.tolist()], dtype=bool)
+    return np.isin(a, b)
 
 
 def _first_of_each(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,9 +112,7 @@ class Assembler:
     # -- helpers -------------------------------------------------------------------------
     def _periods(self, dec: DecodedBatch, adc_idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Period (ticks) in force at each ADC frame, and whether a status frame set it."""
-        st = np.flatnonzero(
-            (dec.kind == FrameKind.STATUS) & (dec.outcome == Outcome.OK) & (dec.sample_rate > 0)
-        )
+        st = np.flatnonzero((dec.kind == _STATUS) & (dec.outcome == _OK) & (dec.sample_rate > 0))
         period = np.full(len(adc_idx), self.period_ticks)
         known = np.full(len(adc_idx), self.rate_known)
         if len(st):
@@ -111,7 +126,7 @@ class Assembler:
         return period, known
 
     def _accepted_keys(self) -> np.ndarray:
-        rows = np.concatenate([self._open, self._recent])
+        rows = np.concatenate([self._open, self._recent]) if len(self._recent) else self._open
         nn, ch = np.nonzero(rows["present"])
         return rows["n"][nn] * 4 + ch + 1
 
@@ -123,7 +138,7 @@ class Assembler:
 
         Returns (emitted samples, events)."""
         events = [self._error_events(t, dec)]
-        adc = np.flatnonzero((dec.kind == FrameKind.ADC) & (dec.outcome == Outcome.OK))
+        adc = np.flatnonzero((dec.kind == _ADC) & (dec.outcome == _OK))
         period, known = self._periods(dec, adc)
         if len(adc) == 0:
             return np.zeros(0, dtype=SAMPLE_DTYPE), concat_events(events)
@@ -169,9 +184,7 @@ class Assembler:
         late = max_before >= n + WINDOW
         key = n * 4 + ch
         known = self._accepted_keys()
-        fresh = (
-            np.flatnonzero(~late & ~np.isin(key, known)) if len(known) else np.flatnonzero(~late)
-        )
+        fresh = np.flatnonzero(~late & ~_isin(key, known)) if len(known) else np.flatnonzero(~late)
         _, first = _first_of_each(key[fresh])
         acc = np.zeros(len(n), dtype=bool)
         acc[fresh[first]] = True
@@ -207,14 +220,13 @@ class Assembler:
 
     # -- internals -----------------------------------------------------------------------
     def _error_events(self, t: np.ndarray, dec: DecodedBatch) -> np.ndarray:
+        if not dec.outcome.any():
+            return _NO_EVENTS
         parts = []
-        for outcome, kind, value in (
-            (Outcome.CRC_MISMATCH, EventKind.CRC_ERROR, dec.can_id),
-            (Outcome.WRONG_DLC, EventKind.WRONG_DLC, dec.dlc),
-            (Outcome.UNKNOWN_ID, EventKind.UNKNOWN_ID, dec.can_id),
-        ):
+        for outcome, kind, field in _ERRORS:
             idx = np.flatnonzero(dec.outcome == outcome)
             if len(idx):
+                value = getattr(dec, field)
                 parts.append(make_events(kind, t[idx], dec.channel[idx], -1, value[idx]))
         return concat_events(parts)
 
@@ -250,12 +262,16 @@ class Assembler:
         while k < len(rest) and rest["n"][k] == last + 1 and rest["present"][k].all():
             last += 1
             k += 1
-        out.append(rest[:k])
+        early = rest[:k]
         self._open = rest[k:]
         self.last_emitted = last
-        self._recent = np.concatenate([self._recent, rest[:k]])
-        self._recent = self._recent[self._recent["n"] > bound]
-        return np.concatenate(out)
+        if k:
+            self._recent = np.concatenate([self._recent, early]) if len(self._recent) else early
+        if len(self._recent):
+            self._recent = self._recent[self._recent["n"] > bound]
+        if not k:
+            return out[0]
+        return np.concatenate([out[0], early]) if len(out[0]) else early
 
     def _gap_events(self, out: np.ndarray) -> np.ndarray:
         if len(out) == 0:

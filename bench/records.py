@@ -7,6 +7,8 @@ import numpy as np
 from protocol.batch import DecodedBatch
 from protocol.layout import FrameKind, Outcome
 
+_STATUS, _SPEED, _OK = int(FrameKind.STATUS), int(FrameKind.SPEED), int(Outcome.OK)
+
 STATUS_DTYPE = np.dtype(
     [
         ("seq", "<i8"),
@@ -26,7 +28,7 @@ SPEED_DTYPE = np.dtype(
 
 
 def status_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
-    idx = np.flatnonzero((dec.kind == FrameKind.STATUS) & (dec.outcome == Outcome.OK))
+    idx = np.flatnonzero((dec.kind == _STATUS) & (dec.outcome == _OK))
     out = np.zeros(len(idx), dtype=STATUS_DTYPE)
     out["seq"] = seq0 + idx
     out["t"] = t[idx]
@@ -36,7 +38,7 @@ def status_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
 
 
 def speed_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
-    idx = np.flatnonzero((dec.kind == FrameKind.SPEED) & (dec.outcome == Outcome.OK))
+    idx = np.flatnonzero((dec.kind == _SPEED) & (dec.outcome == _OK))
     out = np.zeros(len(idx), dtype=SPEED_DTYPE)
     out["seq"] = seq0 + idx
     out["t"] = t[idx]

@@ -51,7 +51,9 @@ class Stats:
 
     def count_frames(self, ids: np.ndarray) -> None:
         self.frames += len(ids)
-        if len(ids):
+        if len(ids) <= 16:  # a live batch: cheaper without numpy's fixed costs
+            self.frames_by_id.update(ids.tolist())
+        else:
             u, c = np.unique(ids, return_counts=True)
             self.frames_by_id.update(dict(zip(u.tolist(), c.tolist(), strict=True)))
 

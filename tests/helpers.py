@@ -10,7 +10,9 @@ from protocol.layout import DEFAULT_BASE
 from protocol.records import AdcSample, BoardStatus, RawFrame
 
 
-def adc(ch: int, counter: int, code: int, ts: int, t: float, status: int = 0, base: int = DEFAULT_BASE) -> RawFrame:
+def adc(
+    ch: int, counter: int, code: int, ts: int, t: float, status: int = 0, base: int = DEFAULT_BASE
+) -> RawFrame:
     can_id, data = encode_adc(AdcSample(ch, counter % 256, code, status, ts % 65536), base)
     return RawFrame(t, can_id, data)
 
@@ -20,8 +22,14 @@ def status_frame(rate: int, t: float, counter: int = 0, base: int = DEFAULT_BASE
     return RawFrame(t, can_id, data)
 
 
-def instant(k: int, codes: tuple[int, int, int] = (100, 200, 300), rate: int = 200, t0: float = 0.0,
-            counter0: int = 0, ts0: int = 0) -> list[RawFrame]:
+def instant(
+    k: int,
+    codes: tuple[int, int, int] = (100, 200, 300),
+    rate: int = 200,
+    t0: float = 0.0,
+    counter0: int = 0,
+    ts0: int = 0,
+) -> list[RawFrame]:
     """The three frames of sampling instant k, ch1 first, at `rate` Hz."""
     period_ticks = 10000 // rate
     ts = ts0 + k * period_ticks

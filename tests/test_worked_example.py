@@ -35,10 +35,16 @@ def _write_candump(path: Path, frames) -> None:
 def _case(tmp_path: Path, row: dict[str, str]) -> dict[str, str]:
     alpha = math.atan(float(row["true_gradient_permil"]) / 1000)  # the alpha column is rounded
     accel = [float(row["a1_mps2"]), float(row["a2_mps2"])]
-    accel.append(A_TRAIN * math.cos(math.radians(ANGLES[2])) + G * math.sin(alpha + math.radians(ANGLES[2])))
+    accel.append(
+        A_TRAIN * math.cos(math.radians(ANGLES[2])) + G * math.sin(alpha + math.radians(ANGLES[2]))
+    )
     codes = [round(a / NOMINAL_SCALE) for a in accel]
     offsets = [c - a / NOMINAL_SCALE for c, a in zip(codes, accel, strict=True)]
-    frames = [adc(ch, k, codes[ch - 1], k * 50, k * 0.005 + ch * 1e-4) for k in range(5) for ch in (1, 2, 3)]
+    frames = [
+        adc(ch, k, codes[ch - 1], k * 50, k * 0.005 + ch * 1e-4)
+        for k in range(5)
+        for ch in (1, 2, 3)
+    ]
     log = tmp_path / "example.log"
     _write_candump(log, frames)
     cfg = tmp_path / "cal.toml"
