@@ -205,30 +205,11 @@ def emulated(seconds: float = 15.0, *, seed: int = 5, faults: bool = True) -> An
 
 
 def uart_batches(sim: Any, packets_per_batch: int = 300) -> list[SourceBatch]:
-    """The emulator's UART byte stream as a serial receiver sees it: packet by packet at
-    its send time, so frames carry FLAG_UART and broken packets become link errors."""
-    from protocol.frames import frames_from_raw
-    from protocol.uart import Deframer
+    """The emulator's UART byte stream as a serial receiver sees it (the acceptance
+    runner's feed: packet by packet at its send time, FLAG_UART frames, link errors)."""
+    from bench.acceptance.runner import uart_batches as feed
 
-    stream = sim.uart_stream()
-    data, ends, times = stream.data, stream.packet_end, stream.packet_t
-    de = Deframer()
-    out: list[SourceBatch] = []
-    start = 0
-    for i0 in range(0, len(ends), packets_per_batch):
-        raw: list[Any] = []
-        errors: list[LinkError] = []
-        for i in range(i0, min(i0 + packets_per_batch, len(ends))):
-            end = int(ends[i])
-            fr, er = de.feed(data[start:end], float(times[i]))
-            raw += fr
-            errors += er
-            start = end
-        out.append(SourceBatch(frames_from_raw(raw), errors))
-    fr, er = de.flush()
-    if fr or er:
-        out.append(SourceBatch(frames_from_raw(fr), er))
-    return out
+    return list(feed(sim, packets_per_batch))
 
 
 def test_synthetic_stream_has_every_fault_kind() -> None:
