@@ -19,14 +19,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from benchmarks._worker import MARKER
+from benchmarks._worker import MARKER, PARTIAL
 from benchmarks.common import ROOT, Figure, fmt_value, machine_info
 
 DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 
 # name, kwargs (full), kwargs (quick), timeout s (full)
 PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
-    ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 360),
+    ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 480),
     ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
     ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 330),
     ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
@@ -42,8 +42,17 @@ def run_worker(name: str, kwargs: dict[str, Any], timeout: float) -> list[Figure
         proc = subprocess.run(
             cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, text=True, timeout=timeout, check=False
         )
-    except subprocess.TimeoutExpired:
-        return [Figure(name, name, None, "", error=f"timed out after {timeout:.0f} s")]
+    except subprocess.TimeoutExpired as exc:
+        out = exc.stdout.decode() if isinstance(exc.stdout, bytes) else (exc.stdout or "")
+        got = [
+            Figure.from_dict(json.loads(line[len(PARTIAL) :]))
+            for line in out.splitlines()
+            if line.startswith(PARTIAL)
+        ]
+        return [
+            *got,
+            Figure(name, f"{name} (rest)", None, "", error=f"timed out after {timeout:.0f} s"),
+        ]
     for line in reversed(proc.stdout.splitlines()):
         if line.startswith(MARKER):
             return [Figure.from_dict(d) for d in json.loads(line[len(MARKER) :])]

@@ -15,6 +15,16 @@ from typing import Any
 from benchmarks.common import Figure
 
 MARKER = "FIGURES "
+PARTIAL = "FIGURE "
+
+
+class _Emitting(list):
+    """A list of figures that prints each one as it is added, so that a measurement that
+    runs out of time still reports what it had (the parent reads them from the output)."""
+
+    def append(self, fig: Figure) -> None:
+        super().append(fig)
+        print(PARTIAL + json.dumps(fig.as_dict()), flush=True)
 
 
 def _log(text: str) -> None:
@@ -25,7 +35,7 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
     if name == "replay":
         from benchmarks import replay
 
-        return replay.measure(**kwargs)
+        return replay.measure(out=_Emitting(), **kwargs)
     if name == "fusion":
         from benchmarks import fusion
 

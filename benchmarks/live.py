@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import itertools
+import math
 import os
 import tempfile
 import threading
@@ -42,6 +43,7 @@ RATE_TARGET = 20_000.0
 P99_TARGET_MS = 5.0
 PACE_TOLERANCE = 0.97
 KEEP_UP_S = 0.5
+MAX_BEHIND_S = 1.0
 _ids = itertools.count(1)
 
 
@@ -139,18 +141,25 @@ class LiveRun:
         return self.rate_achieved >= PACE_TOLERANCE * self.rate_asked
 
     @property
-    def kept_up(self) -> bool:
+    def drained(self) -> bool:
         return self.drain_s <= KEEP_UP_S
 
     @property
     def ok(self) -> bool:
-        return self.lossless and self.kept_up
+        """The issue's criterion: sent = logged (nothing lost), and no backlog at the end."""
+        return self.lossless and self.drained
+
+    @property
+    def strict(self) -> bool:
+        """And the bench was never more than MAX_BEHIND_S behind during the run."""
+        return self.ok and self.max_ms <= MAX_BEHIND_S * 1000.0
 
     def as_dict(self) -> dict[str, Any]:
         d = dict(self.__dict__)
         d["lossless"] = self.lossless
         d["paced"] = self.paced
-        d["kept_up"] = self.kept_up
+        d["drained"] = self.drained
+        d["strict"] = self.strict
         return d
 
     def summary(self) -> str:
@@ -278,50 +287,79 @@ def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> tup
 
 
 # ------------------------------------------------------------------------------- figures
+def _confirm(
+    ladder: list[float], top: int, confirm_s: float, test: Any, runs: list[LiveRun], log: Any
+) -> LiveRun | None:
+    """Confirm ``ladder[top]`` over ``confirm_s`` (reusing a confirmation already run at that
+    rate), stepping down the ladder until ``test`` holds."""
+    for i in range(top, -1, -1):
+        done = [
+            r
+            for r in runs
+            if r.seconds == confirm_s and math.isclose(r.rate_asked, ladder[i], rel_tol=1e-9)
+        ]
+        r = done[0] if done else run_live(ladder[i], confirm_s)
+        if not done:
+            runs.append(r)
+            log(f"  confirm {r.summary()}")
+        if test(r):
+            return r
+    return None
+
+
 def find_max_rate(
     probe_s: float, confirm_s: float, ladder: list[float], log: Any = print
-) -> tuple[LiveRun | None, list[LiveRun]]:
-    """Climb ``ladder`` with ``probe_s`` runs while they are lossless and keep up (and stop
-    early once the board cannot send faster); then confirm the best for ``confirm_s``,
-    stepping down the ladder if the confirmation fails."""
+) -> tuple[LiveRun | None, LiveRun | None, list[LiveRun]]:
+    """Climb ``ladder`` with ``probe_s`` runs while they are lossless and drained (stopping
+    early once the board cannot send faster), then confirm the best over ``confirm_s``,
+    stepping down if the confirmation fails. Returns the confirmed runs for the issue's
+    criterion (:attr:`LiveRun.ok`) and the strict one (:attr:`LiveRun.strict`)."""
     runs: list[LiveRun] = []
-    best = -1
+    top = strict_top = -1
     for i, rate in enumerate(ladder):
         r = run_live(rate, probe_s)
         runs.append(r)
         log(f"  probe   {r.summary()}")
         if not r.ok:
             break
-        best = i
+        top = i
+        if r.strict:
+            strict_top = i
         if not r.paced:  # the sender is the limit: asking for more changes nothing
             break
-    while best >= 0:
-        r = run_live(ladder[best], confirm_s)
-        runs.append(r)
-        log(f"  confirm {r.summary()}")
-        if r.ok:
-            return r, runs
-        best -= 1
-    return None, runs
+    best = _confirm(ladder, top, confirm_s, lambda r: r.ok, runs, log)
+    if best is not None and best.strict:
+        return best, best, runs
+    strict_top = min(
+        strict_top, top - 1 if best is not None and best.rate_asked == ladder[top] else top
+    )
+    strict = _confirm(ladder, strict_top, confirm_s, lambda r: r.strict, runs, log)
+    return best, strict, runs
+
+
+def _rate_detail(r: LiveRun | None, confirm_s: float) -> str:
+    if r is None:
+        return "no rate on the ladder qualified"
+    text = (
+        f"sent = received = logged = {r.sent} over {confirm_s:.0f} s, MCAP complete, "
+        f"drained {r.drain_s:.2f} s after the board stopped; at most {r.max_ms:.0f} ms behind "
+        f"(p50 {r.p50_ms:.0f}, p99 {r.p99_ms:.0f} ms)"
+    )
+    if not r.paced:
+        text += f"; the board was asked for {r.rate_asked:,.0f}/s (sender-limited)"
+    return text
 
 
 def measure_rate(confirm_s: float = 30.0, probe_s: float = 5.0, log: Any = print) -> list[Figure]:
-    ladder = [5_000.0, 10_000.0, 20_000.0, 25_000.0, 30_000.0, 40_000.0, 50_000.0, 60_000.0]
-    best, runs = find_max_rate(probe_s, confirm_s, ladder, log)
-    if best is not None:
-        detail = (
-            f"sent = received = logged = {best.sent} over {confirm_s:.0f} s, MCAP complete, "
-            f"drained {best.drain_s:.2f} s after the board stopped"
-        )
-        if not best.paced:
-            detail += f" (board asked for {best.rate_asked:,.0f}/s: sender-limited)"
-    else:
-        detail = "no rate on the ladder was lossless and kept up"
-    failed = [r for r in runs if not r.ok]
+    # 21 k: the target is 20 k *achieved*; an in-process board reaches ~99 % of what it is asked
+    ladder = [5_000.0, 10_000.0, 15_000.0, 21_000.0, 25_000.0, 30_000.0, 40_000.0, 50_000.0]
+    best, strict, runs = find_max_rate(probe_s, confirm_s, ladder, log)
+    detail = _rate_detail(best, confirm_s)
+    failed = [r for r in runs if r.seconds == probe_s and not r.ok]
     if failed:
         f = failed[0]
-        why = "loss" if not f.lossless else f"fell behind ({f.drain_s:.1f} s to drain)"
-        detail += f"; first failure at {f.rate_asked / 1e3:.0f} k: {why}"
+        why = "frames lost" if not f.lossless else f"{f.drain_s:.1f} s of backlog at the end"
+        detail += f"; next step {f.rate_asked / 1e3:.0f} k: {why}"
     return [
         Figure(
             "live_max_rate",
@@ -331,7 +369,15 @@ def measure_rate(confirm_s: float = 30.0, probe_s: float = 5.0, log: Any = print
             target=RATE_TARGET,
             detail=detail,
             extra={"runs": [r.as_dict() for r in runs], "ladder": ladder},
-        )
+        ),
+        Figure(
+            "live_max_rate_strict",
+            f"  ... and never > {MAX_BEHIND_S:g} s behind",
+            strict.rate_achieved if strict is not None else 0.0,
+            "frames/s",
+            detail=_rate_detail(strict, confirm_s)
+            + " (a real adapter's receive buffer holds far less than the virtual bus)",
+        ),
     ]
 
 

@@ -172,3 +172,32 @@ def test_mcap_magic_then_garbage(tmp_path_factory: pytest.TempPathFactory, blob:
     path = tmp_path_factory.mktemp("garbage") / "g.mcap"
     path.write_bytes(b"\x89MCAP0\r\n" + blob)
     _read_all(path)
+
+
+@pytest.mark.parametrize("bad_t", [float("inf"), float("nan"), 1e300, -1.0])
+@pytest.mark.parametrize("batch", [1, 4096], ids=["live-sized", "replay-sized"])
+def test_absurd_receive_time_on_any_frame_is_survived(bad_t: float, batch: int) -> None:
+    """One corrupt receive time (a damaged log line, a broken clock) on a SPEED_REF, status
+    or ADC frame: fed live-sized (one frame at a time, the scalar fast paths) or in replay
+    batches, the pipeline carries on and the rest of the stream is assembled as before."""
+    from devices.emulator import scenario_from_dict, simulate
+
+    frames = simulate(scenario_from_dict({"duration_s": 2.0, "sample_rate_hz": 200})).frames
+    frames["t"] += 1.7e9
+    clean = _run(frames, batch)
+    for kind_id in (SPEED_REF_ID, DEFAULT_BASE, DEFAULT_BASE + 2):
+        f = frames.copy()
+        at = int(np.flatnonzero(f["id"] == kind_id)[len(np.flatnonzero(f["id"] == kind_id)) // 2])
+        f["t"][at] = bad_t
+        with np.errstate(invalid="raise", over="raise"):  # no silent invalid casts either
+            n = _run(f, batch)
+        assert n >= clean - 2, f"id 0x{kind_id:X}, t={bad_t}: {n} of {clean} samples"
+
+
+def _run(frames: np.ndarray, batch: int) -> int:
+    p = Pipeline(Config(sample_rate_hz=200))
+    n = sum(
+        len(p.process(SourceBatch(frames[i : i + batch])).results)
+        for i in range(0, len(frames), batch)
+    )
+    return n + len(p.finish().results)
