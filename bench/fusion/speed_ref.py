@@ -38,6 +38,7 @@ import math
 
 import numpy as np
 
+from bench.assembly import MAX_BRIDGE_TICKS
 from bench.config import EstimatorSettings
 from bench.fusion.isolation import NEVER
 from bench.fusion.kalman import SpeedKalman
@@ -60,6 +61,11 @@ def leaky_min(
     with np.errstate(invalid="ignore"):
         out = np.where(np.isfinite(run), rho * clock_s + run, np.nan)
     return out, float(run[-1]) if len(run) else base
+
+
+def _plausible(step_ticks: np.ndarray) -> np.ndarray:
+    """Finite and no longer than the longest gap receive time is trusted to bridge."""
+    return np.abs(step_ticks) <= MAX_BRIDGE_TICKS  # False for NaN and inf
 
 
 class ReferenceAcceleration:
@@ -149,9 +155,13 @@ class ReferenceAcceleration:
         prev_t = np.concatenate(([self._prev_t], t[:-1]))
         prev_b = np.concatenate(([self._prev_anchor_b], anchor_b[:-1]))
         d = (ts - prev_ts) % TS_WRAP
-        step = (t - prev_t) / TICK_S
-        step = np.where(np.isnan(step), (anchor_b - prev_b) / TICK_S, step)
-        d += TS_WRAP * np.maximum(np.rint((step - d) / TS_WRAP), 0.0).astype(np.int64)
+        # receive time bridges wraps only over plausible gaps (as in bench.assembly): a
+        # missing or absurd receive time (NaN, inf, 1e300, -1) falls back to board time
+        with np.errstate(invalid="ignore", over="ignore"):
+            step = (t - prev_t) / TICK_S
+            step = np.where(_plausible(step), step, (anchor_b - prev_b) / TICK_S)
+            wraps = np.where(_plausible(step), np.rint((step - d) / TS_WRAP), 0.0)
+        d += TS_WRAP * np.maximum(wraps, 0.0).astype(np.int64)
         restart = d > s.coast_s / TICK_S  # SPEED_REF was away too long: the state is stale
         if not self._started:
             d[0] = ts[0] - self._odo_ticks
@@ -188,9 +198,10 @@ class ReferenceAcceleration:
         if self._started:
             d = (ts - self._prev_ts) % TS_WRAP
             step = (t - self._prev_t) / TICK_S
-            if step != step:
+            if not abs(step) <= MAX_BRIDGE_TICKS:  # NaN, inf or absurd: use board time
                 step = (anchor_b - self._prev_anchor_b) / TICK_S
-            d += TS_WRAP * max(round((step - d) / TS_WRAP), 0)
+            if abs(step) <= MAX_BRIDGE_TICKS:
+                d += TS_WRAP * max(round((step - d) / TS_WRAP), 0)
             restart = d > s.coast_s / TICK_S
         else:
             d = ts - self._odo_ticks
