@@ -18,7 +18,7 @@ from typing import Any
 from bench.acceptance.checks import KINDS, CheckSpec, Param
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
-from bench.textfile import read_text_file
+from bench.textfile import path_or_packaged, read_text_file
 from bench.tomlcheck import Table, tname
 
 PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
@@ -308,13 +308,12 @@ def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Pla
 
 def resolve_plan_path(name: str | Path) -> Path:
     """A path as given if it exists, else a shipped plan by name (``level`` -> level.toml)."""
-    p = Path(name)
-    if p.exists():
-        return p
-    builtin = PLAN_DIR / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
-    if p.parent == Path(".") and builtin.exists():
-        return builtin
-    raise ConfigError(f"{p}: no such plan file (bench accept --list shows the shipped plans)")
+    found = path_or_packaged(name, PLAN_DIR)
+    if found is None:
+        raise ConfigError(
+            f"{name}: no such plan file (bench accept --list shows the shipped plans)"
+        )
+    return found
 
 
 def load_plan(name: str | Path) -> Plan:

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
-from bench.textfile import read_text_file
+from bench.textfile import path_or_packaged, read_text_file
 from bench.tomlcheck import Table, is_integer
 from protocol.layout import (
     DEFAULT_BASE,
@@ -414,14 +414,11 @@ def parse_scenario(text: str, source: str = "<string>") -> Scenario:
 
 def resolve_scenario_path(name: str | Path) -> Path:
     """A path as given if it exists, else a built-in scenario by name (``demo`` -> demo.toml)."""
-    p = Path(name)
-    if p.exists():
-        return p
-    builtin = SCENARIO_DIR / (p.name if p.suffix == ".toml" else f"{p.name}.toml")
-    if p.parent == Path(".") and builtin.exists():
-        return builtin
-    known = ", ".join(builtin_scenarios())
-    raise ConfigError(f"{p}: no such scenario file (built-in scenarios: {known})")
+    found = path_or_packaged(name, SCENARIO_DIR)
+    if found is None:
+        known = ", ".join(builtin_scenarios())
+        raise ConfigError(f"{name}: no such scenario file (built-in scenarios: {known})")
+    return found
 
 
 def builtin_scenarios() -> list[str]:
