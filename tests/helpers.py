@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+
 import numpy as np
 
+from devices.base import LiveSource, SourceBatch
 from protocol.can_codec import encode_adc, encode_status
 from protocol.frames import frames_from_raw
 from protocol.layout import DEFAULT_BASE
@@ -39,3 +43,16 @@ def instant(
 
 def pack(frames: list[RawFrame]) -> np.ndarray:
     return frames_from_raw(frames)
+
+
+def read_until(
+    src: LiveSource, done: Callable[[list[SourceBatch]], bool], timeout: float = 5.0
+) -> list[SourceBatch]:
+    """Read a live source until ``done(batches)`` or the timeout; every non-empty batch kept."""
+    batches: list[SourceBatch] = []
+    deadline = time.monotonic() + timeout
+    while not done(batches) and time.monotonic() < deadline:
+        batch = src.read(0.05)
+        if batch:
+            batches.append(batch)
+    return batches

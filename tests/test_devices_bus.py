@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import time
 import uuid
-from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -30,6 +29,7 @@ from protocol.records import (
     BoardStatus,
     SpeedRef,
 )
+from tests.helpers import read_until
 
 
 @pytest.fixture
@@ -51,16 +51,6 @@ def no_python_can_config(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Non
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("HOME", str(tmp_path))
     monkeypatch.setattr(can.util, "CONFIG_FILES", [str(tmp_path / ".canrc")])
-
-
-def read_until(src: CanBusSource, done: Callable[[list[SourceBatch]], bool]) -> list[SourceBatch]:
-    batches: list[SourceBatch] = []
-    deadline = time.monotonic() + 5.0
-    while not done(batches) and time.monotonic() < deadline:
-        batch = src.read(0.05)
-        if batch:
-            batches.append(batch)
-    return batches
 
 
 def all_frames(batches: list[SourceBatch]) -> np.ndarray:

@@ -11,7 +11,7 @@ import contextlib
 import os
 import time
 import tty
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from devices.serial_port import DEFAULT_BAUD, SerialSource
 from protocol.can_codec import decode, encode_adc
 from protocol.crc import crc16_ccitt_false
 from protocol.records import FLAG_UART, AdcSample
+from tests.helpers import read_until
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="needs a pty")
 
@@ -53,16 +54,6 @@ def flipped(sample: AdcSample, bit: int) -> bytes:
     raw += bytes((crc & 0xFF, crc >> 8))
     raw[bit // 8] ^= 1 << (bit % 8)
     return cobs.encode(bytes(raw)) + b"\0"
-
-
-def read_until(src: SerialSource, done: Callable[[list[SourceBatch]], bool]) -> list[SourceBatch]:
-    batches: list[SourceBatch] = []
-    deadline = time.monotonic() + 5.0
-    while not done(batches) and time.monotonic() < deadline:
-        batch = src.read(0.05)
-        if batch:
-            batches.append(batch)
-    return batches
 
 
 def n_frames(batches: list[SourceBatch]) -> int:
