@@ -228,15 +228,21 @@ class LiveRunner:
         self._ring_pos = end % HISTORY
         self._ring_len = min(HISTORY, self._ring_len + k)
 
+    def _last_rows(self, k: int) -> np.ndarray:
+        """A copy of the newest ``k`` ring rows, oldest first (contiguous slices, no gather)."""
+        pos = self._ring_pos
+        if k <= pos:
+            return self._ring[pos - k : pos].copy()
+        return np.concatenate((self._ring[HISTORY - (k - pos) :], self._ring[:pos]))
+
     # -- snapshot --------------------------------------------------------------------------
     def snapshot(self, last: int = HISTORY) -> Snapshot:
-        with self._lock:
-            k = min(last, self._ring_len)
-            idx = (self._ring_pos - k + np.arange(k)) % HISTORY
-            results = self._ring[idx]
+        with self._lock:  # held for two memcpys: the processing thread waits on it
+            results = self._last_rows(min(last, self._ring_len))
             stats = copy.deepcopy(self.pipeline.stats)
             events = list(self._events)
-            lat = np.array(self._latency) * 1000.0
+            latency = list(self._latency)
+        lat = np.array(latency) * 1000.0
         rec = None
         if self.recording is not None:
             rec = getattr(self.recording, "status", lambda: None)()

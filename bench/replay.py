@@ -9,6 +9,7 @@ import numpy as np
 
 from bench.config import Config
 from bench.pipeline import Pipeline, StepOutput
+from bench.prefetch import prefetch
 from bench.results import RESULT_DTYPE
 from bench.sinks import Sink
 from devices.base import FileSource, SourceBatch
@@ -37,12 +38,14 @@ def replay(
     batch_frames: int = 65536,
     on_progress: Callable[[int], None] | None = None,
 ) -> ReplayOutcome:
-    """Run a log through a fresh Pipeline, feeding each step to the sinks."""
+    """Run a log through a fresh Pipeline, feeding each step to the sinks.
+
+    The source is read a few batches ahead in a thread of its own (bench.prefetch)."""
     pipeline = Pipeline(config)
     sinks = list(sinks)
     parts: list[np.ndarray] = []
     notices: list[str] = []
-    for step in run_steps(pipeline, source.batches(batch_frames)):
+    for step in run_steps(pipeline, prefetch(source.batches(batch_frames))):
         if step.batch is not None:
             notices += [f"{n.kind}: {n.detail}" for n in step.batch.notices]
         for sink in sinks:

@@ -282,7 +282,11 @@ class BenchApp(App[int]):
             if not s.running:
                 text.append("  stopped", style="yellow")
         if self.session.recorder.active:
-            text.append("  ● REC", style="bold red")
+            failed = s is not None and s.recording is not None and s.recording.get("error")
+            if failed:  # the recording panel says why; the header must not claim REC
+                text.append("  ✖ LOG FAILED", style="bold white on red")
+            else:
+                text.append("  ● REC", style="bold red")
         if self.display_paused:
             text.append("  DISPLAY PAUSED (acquisition and log continue)", style="bold yellow")
         if self.quitting:
