@@ -301,16 +301,16 @@ def test_disk_full_midway_keeps_what_was_written(
 ) -> None:
     from bench.mcaplog import writer as W
 
-    real_flush = W.McapFile.flush_chunk
+    real_write_chunk = W.McapFile._write_chunk
     calls = {"n": 0}
 
-    def flaky_flush(self):  # type: ignore[no-untyped-def]
+    def flaky_write_chunk(self, chunk):  # type: ignore[no-untyped-def]
         calls["n"] += 1
-        if calls["n"] > 2:
+        if calls["n"] > 4:
             raise OSError(28, "No space left on device")
-        return real_flush(self)
+        return real_write_chunk(self, chunk)
 
-    monkeypatch.setattr(W.McapFile, "flush_chunk", flaky_flush)
+    monkeypatch.setattr(W.McapFile, "_write_chunk", flaky_write_chunk)
     stream = synthetic_stream(seconds=1.0, faults=False)
     path = tmp_path / "full.mcap"
     sink = McapSink(path, Config(), {}, chunk_size=4096)

@@ -251,7 +251,7 @@ STATUS_COLUMNS = columns_for(STATUS_DTYPE)
 SPEED_COLUMNS = columns_for(SPEED_DTYPE)
 
 
-def _float_tokens(values: np.ndarray) -> list[str]:
+def float_tokens(values: np.ndarray) -> list[str]:
     """repr() of each float (C loop), then the few non-finite ones patched."""
     vals = np.asarray(values, dtype=np.float64)
     out = list(map(repr, vals.tolist()))
@@ -261,13 +261,16 @@ def _float_tokens(values: np.ndarray) -> list[str]:
     return out
 
 
+_BOOL_TOKENS = ("false", "true")
+
+
 def tokens(col: Column, rows: np.ndarray) -> list[str]:
     """JSON text of one column for every row."""
     values = col.values(rows)
     if col.kind == "float":
-        return _float_tokens(values)
+        return float_tokens(values)
     if col.kind == "bool":
-        return ["true" if v else "false" for v in values.tolist()]
+        return list(map(_BOOL_TOKENS.__getitem__, values.astype(bool).tolist()))
     return list(map(str, values.astype(np.int64).tolist()))
 
 
@@ -320,7 +323,7 @@ def decode_rows(
 def json_text(value: object) -> str:
     """A JSON token for one Python value (strings escaped; floats as in :func:`tokens`)."""
     if isinstance(value, float):
-        return _float_tokens(np.array([value]))[0]
+        return float_tokens(np.array([value]))[0]
     return json.dumps(value, ensure_ascii=False)
 
 

@@ -1,10 +1,8 @@
-"""Throughput of the raw-frame path: the writer encodes and the reader gathers frames with
-numpy, not per message. Floors are far below the measured rates (docs/MCAP.md) so a slow CI
-machine passes, yet a per-message Python loop (~0.1 M frames/s) would fail them."""
+"""The bulk raw-frame path: a million frames written in pipeline-sized blocks come back byte
+for byte. (How fast is measured in benchmarks/replay.py, not asserted here.)"""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
@@ -26,25 +24,19 @@ def big_frames(n: int = N) -> np.ndarray:
     return fr
 
 
-def test_frame_write_and_read_throughput(tmp_path: Path) -> None:
+def test_a_million_frames_round_trip_in_blocks(tmp_path: Path) -> None:
     frames = big_frames()
     outcome = np.zeros(len(frames), np.uint8)
     path = tmp_path / "big.mcap"
-    t0 = time.perf_counter()
     mf = McapFile(path)
     enc = MessageEncoder(mf)
     for i in range(0, len(frames), 65536):
         enc.write_frames(frames[i : i + 65536], outcome[i : i + 65536], 0)
         mf.maybe_flush()
     mf.finish()
-    write_rate = len(frames) / (time.perf_counter() - t0)
 
-    t0 = time.perf_counter()
     source = McapFrameSource(path)
     got = [b.frames for b in source.batches()]
-    read_rate = len(frames) / (time.perf_counter() - t0)
     source.close()
-    print(f"MCAP frames: write {write_rate / 1e6:.2f} M/s, read {read_rate / 1e6:.2f} M/s")
+    assert sum(len(g) for g in got) == len(frames)
     assert np.concatenate(got).tobytes() == frames.tobytes()
-    assert read_rate > 0.6e6
-    assert write_rate > 0.3e6
