@@ -15,6 +15,8 @@ from bench.assembly import usable
 from bench.config import Config
 from bench.events import EventKind
 from bench.fusion.estimator import SCALAR_MAX, Estimator
+from bench.fusion.isolation import ResidualIsolator
+from bench.fusion.least_squares import geometry
 from bench.pipeline import Pipeline
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
@@ -125,15 +127,52 @@ def test_stuck_detector_remembers_channels_across_a_batch_ending_with_them_missi
     look like a first appearance (a 'change') in the next batch."""
     from bench.fusion.isolation import StuckDetector
 
-    codes = np.tile(np.array([[5, 6, 7]]), (8, 1))
-    present = np.ones((8, 3), dtype=bool)
-    present[3] = [False, True, False]
+    codes = np.tile(np.array([[5], [6], [7]]), (1, 8))  # channel-major (3, N)
+    present = np.ones((3, 8), dtype=bool)
+    present[:, 3] = [False, True, False]
     ticks = np.arange(8) * 50
     whole = StuckDetector(100).push(ticks, codes, present)
     split = StuckDetector(100)
     parts = [
-        split.push(ticks[:4], codes[:4], present[:4]),
-        split.push(ticks[4:], codes[4:], present[4:]),
+        split.push(ticks[:4], codes[:, :4], present[:, :4]),
+        split.push(ticks[4:], codes[:, 4:], present[:, 4:]),
     ]
-    assert np.array_equal(np.concatenate(parts), whole)
+    assert np.array_equal(np.concatenate(parts, axis=1), whole)
     assert not whole.any()  # nothing changes at all: nothing is stuck
+
+
+@pytest.mark.parametrize("window", [1, 3, 50])
+def test_residual_isolator_push_and_step_agree_however_the_stream_is_cut(window: int) -> None:
+    """Windows of one sample, shorter than a push, longer than several: one push of all,
+    against pushes and steps (the live twin) taking turns on random pieces."""
+    config = Config()
+    angles = np.array(config.angles_rad)
+    rng = np.random.default_rng(window)
+    n = 600
+    acc = 0.3 * np.cos(angles) + config.g * np.sin(0.01 + angles) + rng.normal(0, 1e-3, (n, 3))
+    acc[200:400, 1] += 0.08  # ch2 biased: the residual alarms and singles it out
+    cand = rng.random(n) > 0.1
+    a_ref = np.full(n, 0.3)
+    a_ref[rng.random(n) < 0.2] = np.nan  # the pairs' miss of g then uses w alone
+    acc_t = np.where(cand, acc.T, 0.0)  # channel-major, as the estimator passes it
+
+    def isolator() -> ResidualIsolator:
+        return ResidualIsolator(geometry(config.angles_rad), config.g, 0.02, window)
+
+    whole_residual, whole_single = isolator().push(acc_t, cand, a_ref)
+    assert set(whole_single[200:400].tolist()) >= {1}
+    iso = isolator()
+    residual, single = [], []
+    cuts = np.cumsum(rng.integers(1, 2 * window + 4, n))
+    for lo, hi in itertools.pairwise([0, *cuts[cuts < n].tolist(), n]):
+        if hi - lo <= 3:
+            for i in range(lo, hi):
+                r, s = iso.step(tuple(acc_t[:, i].tolist()), bool(cand[i]), float(a_ref[i]))
+                residual.append(r)
+                single.append(s)
+        else:
+            r, s = iso.push(acc_t[:, lo:hi], cand[lo:hi], a_ref[lo:hi])
+            residual += r.tolist()
+            single += s.tolist()
+    assert np.array(residual).tobytes() == whole_residual.tobytes()
+    assert single == whole_single.tolist()

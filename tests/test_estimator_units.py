@@ -3,6 +3,7 @@ alignment, stuck detection, exclusion latch, settings."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -15,7 +16,7 @@ from bench.events import EventKind
 from bench.fusion.isolation import ExclusionLatch, Reason, StuckDetector
 from bench.fusion.kalman import ACCEL0_MPS2, SpeedKalman
 from bench.fusion.least_squares import FULL, geometry, solve
-from bench.fusion.speed_ref import ReferenceAcceleration
+from bench.fusion.speed_ref import ReferenceAcceleration, leaky_min
 from bench.records import SPEED_DTYPE
 
 NOMINAL = tuple(math.radians(a) for a in (30.0, 0.0, -30.0))
@@ -126,6 +127,32 @@ def test_a_lost_speed_ref_is_noticed_coast_s_after_its_last_frame(receive_times:
     assert (a_ref[round(s.standstill_s / 0.005) + 2 : last + 1] == 0.0).all()
 
 
+def test_leaky_min_is_its_definition_and_the_same_in_any_cut() -> None:
+    """min over j <= i of x_j + rho (clock_i - clock_j), non-finite x skipped, NaN before the
+    first finite one; cut anywhere (the running minimum carried over), the same bytes."""
+    rng = np.random.default_rng(2)
+    n, rho = 300, 1e-3
+    clock = np.cumsum(rng.uniform(0.001, 0.01, n))
+    x = rng.normal(0.0, 1e-3, n)
+    x[rng.random(n) < 0.1] = np.nan
+    x[:7] = np.nan  # nothing to go by at first
+    x[50], x[60] = np.inf, -np.inf
+    whole, base = leaky_min(x, clock, rho, math.inf)
+    for i in range(n):
+        terms = [x[j] + rho * (clock[i] - clock[j]) for j in range(i + 1) if np.isfinite(x[j])]
+        if terms:
+            assert whole[i] == pytest.approx(min(terms), abs=1e-12)
+        else:
+            assert math.isnan(whole[i])
+    cuts = np.cumsum(rng.integers(1, 30, n))
+    parts, carried = [], math.inf
+    for lo, hi in itertools.pairwise([0, *cuts[cuts < n].tolist(), n]):
+        part, carried = leaky_min(x[lo:hi], clock[lo:hi], rho, carried)
+        parts.append(part)
+    assert np.concatenate(parts).tobytes() == whole.tobytes()
+    assert carried == base
+
+
 # --------------------------------------------------------------------- stuck and latch
 
 
@@ -138,27 +165,53 @@ def test_stuck_needs_no_change_for_the_window_while_another_channel_changes() ->
     code[:, 1] = 7  # ch2 never changes
     code[:, 2] = np.arange(n) // 10  # ch3 changes every 10 samples (500 ticks)
     present = np.ones((n, 3), dtype=bool)
-    stuck = det.push(ticks, code, present)
-    assert not stuck[:, 0].any()
-    assert stuck[:, 1].tolist() == (ticks >= 100).tolist()  # first seen at 0, quiet from 100
+    stuck = det.push(ticks, code.T, present.T)  # channel-major (3, N)
+    assert not stuck[0].any()
+    assert stuck[1].tolist() == (ticks >= 100).tolist()  # first seen at 0, quiet from 100
     quiet3 = (ticks % 500) >= 100
-    assert stuck[:, 2].tolist() == quiet3.tolist()
+    assert stuck[2].tolist() == quiet3.tolist()
     # nothing changes anywhere: a board at rest without noise is not stuck
     det = StuckDetector(window_ticks=100)
-    assert not det.push(ticks, np.full((n, 3), 5, dtype=np.int32), present).any()
+    assert not det.push(ticks, np.full((3, n), 5, dtype=np.int32), present.T).any()
 
 
 def test_latch_holds_an_exclusion_until_healthy_for_recover_ticks() -> None:
     latch = ExclusionLatch(recover_ticks=200)
     ticks = np.arange(0, 1000, 50)
-    reason = np.zeros((len(ticks), 3), dtype=np.int64)
-    reason[4:6, 1] = Reason.STUCK  # ticks 200, 250
+    reason = np.zeros((3, len(ticks)), dtype=np.int64)  # channel-major (3, N)
+    reason[1, 4:6] = Reason.STUCK  # ticks 200, 250
     latched, events = latch.push(ticks, ticks / 1e4, np.arange(len(ticks)), reason)
-    assert latched[:, 1].tolist() == ((ticks >= 200) & (ticks < 450)).tolist()
-    assert not latched[:, [0, 2]].any()
+    assert latched[1].tolist() == ((ticks >= 200) & (ticks < 450)).tolist()
+    assert not latched[[0, 2]].any()
     assert events["kind"].tolist() == [EventKind.EXCLUDED, EventKind.READMITTED]
     assert events["n"].tolist() == [4, 9] and events["channel"].tolist() == [2, 2]
     assert events["value"][0] == Reason.STUCK
+
+
+def test_latch_events_come_in_sample_then_channel_order_from_push_and_step() -> None:
+    ticks = np.arange(0, 500, 50)
+    reason = np.zeros((3, len(ticks)), dtype=np.int64)  # channel-major (3, N)
+    reason[2, 3] = Reason.STATUS  # tick 150: ch3 and ch1 at once
+    reason[0, 3] = Reason.STUCK
+    reason[1, 5] = Reason.RESIDUAL  # tick 250, as ch1 and ch3 are readmitted (recover 100)
+    ex, re = EventKind.EXCLUDED, EventKind.READMITTED
+    expected = [  # (n, kind, channel, value)
+        (3, ex, 1, Reason.STUCK),
+        (3, ex, 3, Reason.STATUS),
+        (5, re, 1, 0),
+        (5, ex, 2, Reason.RESIDUAL),
+        (5, re, 3, 0),
+        (7, re, 2, 0),
+    ]
+    _, events = ExclusionLatch(recover_ticks=100).push(
+        ticks, ticks / 1e4, np.arange(len(ticks)), reason
+    )
+    assert events[["n", "kind", "channel", "value"]].tolist() == expected
+    latch = ExclusionLatch(recover_ticks=100)
+    stepped = []
+    for i, tk in enumerate(ticks.tolist()):
+        stepped += latch.step(tk, tk / 1e4, i, reason[:, i].tolist())[1]
+    assert [(e[3], e[1], e[2], e[4]) for e in stepped] == expected
 
 
 # --------------------------------------------------------------------------- settings

@@ -109,3 +109,35 @@ def test_batch_equals_row_by_row_on_a_long_randomised_stream():
         a_whole = getattr(whole, name)[idx]
         a_rows = np.concatenate([getattr(r, name) for r in rows])
         assert a_whole.tobytes() == a_rows.tobytes(), name
+
+
+def test_gradient_is_the_table_1_weighted_sum_in_every_vote_pattern():
+    """Every row of noisy streams against Table 1, typed in above, applied by hand to the
+    row's slope values; any cut of a stream agrees bytewise. The slope value of the pair
+    around the middle angle lies between the other two, so each channel order makes some
+    patterns impossible: the three orders below give all eight between them."""
+    table = {tuple(bool(v) for v in votes): w for votes, w in TABLE_1}
+    patterns = set()
+    rng = np.random.default_rng(5)
+    n = 3000
+    for angles in (NOMINAL, np.radians([30.0, -30.0, 0.0]), np.radians([0.0, 30.0, -30.0])):
+        alpha = np.arctan(rng.uniform(0.01, 0.1, n))
+        noise = rng.normal(0, 1, (n, 3)) * rng.choice([1e-4, 1e-3, 1e-2], (n, 1))
+        acc = G * np.sin(alpha[:, None] + angles) + noise
+        acc[rng.random(acc.shape) < 0.05] = np.nan
+        r = fuse(acc, angles, G, 5.0)
+        for slopes, votes, gradient in zip(r.slopes, r.votes, r.gradient, strict=True):
+            key = tuple(votes.tolist())
+            patterns.add(key)
+            if not any(key):
+                assert math.isnan(gradient)
+                continue
+            w = table[key]
+            expected = sum(wk * sk for wk, sk in zip(w, slopes.tolist(), strict=True) if wk)
+            assert gradient == pytest.approx(expected, rel=1e-15)
+        cuts = np.cumsum(rng.integers(1, 40, n))
+        parts = [fuse(p, angles, G, 5.0) for p in np.split(acc, cuts[cuts < n])]
+        for name in ("slopes", "votes", "weights", "gradient", "valid"):
+            joined = np.concatenate([getattr(p, name) for p in parts])
+            assert joined.tobytes() == np.ascontiguousarray(getattr(r, name)).tobytes(), name
+    assert len(patterns) == 8

@@ -26,7 +26,8 @@ from bench.fusion.least_squares import (
     mask_code,
     signed_gradient,
     signed_gradient_one,
-    solve,
+    solve_channels,
+    solve_full,
     solve_one,
 )
 from bench.fusion.speed_ref import ReferenceAcceleration
@@ -58,6 +59,35 @@ numpy calls would dominate); longer ones the vectorised path. Same results eithe
 
 def _ticks(seconds: float) -> int:
     return max(round(seconds / TICK_S), 1)
+
+
+_NO_REASON = (0, 0, 0)
+
+
+def _reason(single: int, stuck: list[bool], present: list[bool], ok: list[bool]) -> list[int]:
+    """Scalar twin of :func:`_reasons` for one sample."""
+    reason = [0, 0, 0]
+    if single >= 0:
+        reason[single] = _RESIDUAL
+    for k in range(3):
+        if stuck[k]:
+            reason[k] = _STUCK
+        if present[k] and not ok[k]:
+            reason[k] = _STATUS
+    return reason
+
+
+def _reasons(single: np.ndarray, stuck: np.ndarray, status: np.ndarray) -> np.ndarray:
+    """(3, N) reason per channel and sample, 0 for none; status beats stuck beats residual."""
+    reason = np.zeros(stuck.shape, dtype=np.uint8)
+    hit = np.flatnonzero(single >= 0)
+    if len(hit):
+        reason[single[hit], hit] = _RESIDUAL
+    if stuck.any():
+        np.copyto(reason, _STUCK, where=stuck)
+    if status.any():
+        np.copyto(reason, _STATUS, where=status)
+    return reason
 
 
 class Estimator:
@@ -95,32 +125,37 @@ class Estimator:
     ) -> tuple[np.ndarray, np.ndarray]:
         n = len(samples)
         a_ref = self.a_ref.push(samples)
-        ticks = samples["ticks"]
-        present = samples["present"]
-        stuck = self.stuck.push(ticks, samples["code"], present)
+        ticks = np.ascontiguousarray(samples["ticks"])
+        # channel-major (3, N) and contiguous from here on: one copy each, then every
+        # operation runs along contiguous rows instead of strided columns
+        present, code, acc, usable = (
+            np.ascontiguousarray(x.T) for x in (samples["present"], samples["code"], acc, usable)
+        )
+        stuck = self.stuck.push(ticks, code, present)
         healthy = usable & ~stuck
-        cand = healthy.all(axis=1)
-        residual, single = self.isolator.push(np.where(healthy, acc, 0.0), cand, a_ref)
-
-        reason = np.zeros((n, 3), dtype=np.int64)
-        hit = single >= 0
-        reason[np.flatnonzero(hit), single[hit]] = Reason.RESIDUAL
-        reason[stuck] = Reason.STUCK
-        reason[present & ~usable] = Reason.STATUS
-        latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
-
+        cand = healthy[0] & healthy[1] & healthy[2]
+        acc_healthy = acc if cand.all() else np.where(healthy, acc, 0.0)
+        residual, single = self.isolator.push(acc_healthy, cand, a_ref)
+        latched, events = self.latch.push(
+            ticks, samples["t"], samples["n"], _reasons(single, stuck, present & ~usable)
+        )
         used = usable & ~latched
-        code = mask_code(used)
-        u, w = solve(np.where(used, acc, 0.0), code, self.geo)
-        out = np.zeros(n, dtype=ESTIMATE_DTYPE)
+        out = np.empty(n, dtype=ESTIMATE_DTYPE)
+        if used.all():
+            u, w = solve_full(acc, self.geo)
+            out["degraded"] = False
+            out["excluded"] = 0
+        else:
+            code = mask_code(used)
+            u, w = solve_channels(np.where(used, acc, 0.0), code, self.geo)
+            out["degraded"] = code != FULL
+            out["excluded"] = _EXCLUDED_OF_MASK[code]
         out["gradient_signed"] = signed_gradient(u, w, a_ref)
         out["gradient_ls"] = magnitude_gradient(w, self.g)
         out["u"] = u
         out["w"] = w
         out["a_ref"] = a_ref
         out["residual"] = residual
-        out["degraded"] = code != FULL
-        out["excluded"] = _EXCLUDED_OF_MASK[code]
         return out, events
 
     def _push_scalar(
@@ -132,7 +167,6 @@ class Estimator:
         geo, g = self.geo, self.g
         a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
         isolate, latch = self.isolator.step, self.latch.step
-        residual_reason, stuck_reason, status_reason = _RESIDUAL, _STUCK, _STATUS
         for ticks, t, seq, n, code, present, a, ok in zip(
             samples["ticks"].tolist(),
             samples["t"].tolist(),
@@ -146,24 +180,26 @@ class Estimator:
         ):
             a_ref = a_ref_step(ticks, t, seq)
             stuck = stuck_step(ticks, code, present)
-            h0, h1, h2 = (ok[k] and not stuck[k] for k in range(3))
             a0, a1, a2 = a
-            a_h = (a0 if h0 else 0.0, a1 if h1 else 0.0, a2 if h2 else 0.0)
-            residual, single = isolate(a_h, h0 and h1 and h2, a_ref)
-            reason = [0, 0, 0]
-            if single >= 0:
-                reason[single] = residual_reason
-            for k in range(3):
-                if stuck[k]:
-                    reason[k] = stuck_reason
-                if present[k] and not ok[k]:
-                    reason[k] = status_reason
-            latched, ev = latch(ticks, t, n, reason)
+            o0, o1, o2 = ok
+            s0, s1, s2 = stuck
+            h0, h1, h2 = o0 and not s0, o1 and not s1, o2 and not s2
+            residual, single = isolate(
+                (a0 if h0 else 0.0, a1 if h1 else 0.0, a2 if h2 else 0.0), h0 and h1 and h2, a_ref
+            )
+            reason = (
+                _reason(single, stuck, present, ok)
+                if single >= 0 or not (h0 and h1 and h2)
+                else _NO_REASON
+            )
+            (l0, l1, l2), ev = latch(ticks, t, n, reason)
             if ev:
                 events += ev
-            u0, u1, u2 = (ok[k] and not latched[k] for k in range(3))
+            u0, u1, u2 = o0 and not l0, o1 and not l1, o2 and not l2
             mask = u0 + 2 * u1 + 4 * u2
-            u, w = solve_one((a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0), mask, geo)
+            if mask != FULL:
+                a = (a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0)
+            u, w = solve_one(a, mask, geo)
             rows.append(
                 (
                     signed_gradient_one(u, w, a_ref),

@@ -65,22 +65,30 @@ class SpeedKalman:
         streak, up = self._streak
         acc_out: list[float] = []
         var_out: list[float] = []
+        add_acc, add_var = acc_out.append, var_out.append
+        gate_s = gate * s
         for h, zk, rk in zip(dt, z, restart, strict=True):
             if rk:
                 speed, acc = zk, 0.0
                 vv, va, aa = r2, 0.0, a0
                 fixed = None
                 streak = 0
+                add_acc(acc)
+                add_var(aa)
+                continue
+            speed = speed + h * acc
+            innov = zk - speed
+            if fixed == h and not innov * innov > gate_s:
+                streak = 0  # the usual step: covariance at its fixed point, innovation in gate
             else:
-                speed = speed + h * acc
-                innov = zk - speed
                 refresh = fixed != h
                 if refresh:
                     pvv, pva, paa = predict(vv, va, aa, h)
                     s = pvv + r2
+                    gate_s = gate * s
                 # manoeuvre: the acceleration changed (a step is an infinite jerk the model
                 # calls impossible): start its estimate afresh instead of lagging for seconds
-                if innov * innov > gate * s:
+                if innov * innov > gate_s:
                     streak = streak + 1 if (innov > 0.0) == up or streak == 0 else 1
                     up = innov > 0.0
                 else:
@@ -89,6 +97,7 @@ class SpeedKalman:
                     streak = 0
                     pvv, pva, paa = predict(r2, 0.0, a0, h)
                     s = pvv + r2
+                    gate_s = gate * s
                     refresh, fixed = True, None
                 if refresh:
                     kv, ka = pvv / s, pva / s
@@ -96,10 +105,10 @@ class SpeedKalman:
                     if new == (vv, va, aa):
                         fixed = h
                     vv, va, aa = new
-                speed = speed + kv * innov
-                acc = acc + ka * innov
-            acc_out.append(acc)
-            var_out.append(aa)
+            speed = speed + kv * innov
+            acc = acc + ka * innov
+            add_acc(acc)
+            add_var(aa)
         self.speed, self.acc = speed, acc
         self.cov = (vv, va, aa)
         self._fixed_dt = fixed

@@ -50,8 +50,8 @@ def geometry(angles_rad: tuple[float, float, float] | np.ndarray) -> Geometry:
 
 
 def mask_code(used: np.ndarray) -> np.ndarray:
-    """(N, 3) bool -> (N,) mask code."""
-    return used[:, 0] + 2 * used[:, 1].astype(np.int64) + 4 * used[:, 2].astype(np.int64)
+    """(3, N) bool, channel-major -> (N,) mask code."""
+    return used[0] + 2 * used[1].astype(np.int64) + 4 * used[2].astype(np.int64)
 
 
 def combine(c: Row | np.ndarray, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
@@ -63,13 +63,37 @@ def combine(c: Row | np.ndarray, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray)
     )
 
 
-def solve(acc: np.ndarray, code: np.ndarray, geo: Geometry) -> tuple[np.ndarray, np.ndarray]:
-    """(u, w) per row from the channels of its mask code (NaN below 2 channels).
+def combine_arrays(c: Row, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
+    """:func:`combine` for a row and arrays, with fewer temporaries (on replay batches each
+    one is a fresh megabyte of page faults)."""
+    out = np.multiply(c[0], a0)
+    term = np.multiply(c[1], a1)
+    out += term
+    out += np.multiply(c[2], a2, out=term)
+    return out
 
-    ``acc`` must be finite wherever the mask uses it (0 elsewhere)."""
-    p = geo.pinv_array[code]
-    a0, a1, a2 = acc[:, 0], acc[:, 1], acc[:, 2]
-    return combine(p[:, 0], a0, a1, a2), combine(p[:, 1], a0, a1, a2)
+
+def solve(acc: np.ndarray, code: np.ndarray, geo: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """(u, w) per row of ``acc`` (N, 3) from the channels of its mask code (NaN below 2
+    channels). ``acc`` must be finite wherever the mask uses it (0 elsewhere)."""
+    return solve_channels(acc.T, code, geo)
+
+
+def solve_channels(
+    acc: np.ndarray, code: np.ndarray, geo: Geometry
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve` for channel-major ``acc`` (3, N)."""
+    table = geo.pinv_array.transpose(1, 2, 0)  # (u/w, channel, code)
+    a0, a1, a2 = acc
+    cu, cw = np.take(table[0], code, axis=1), np.take(table[1], code, axis=1)
+    return cu[0] * a0 + cu[1] * a1 + cu[2] * a2, cw[0] * a0 + cw[1] * a1 + cw[2] * a2
+
+
+def solve_full(acc: np.ndarray, geo: Geometry) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`solve` with all three channels in every sample: the same products of the
+    same coefficients, without gathering them per sample."""
+    pu, pw = geo.pinv[FULL]
+    return combine_arrays(pu, *acc), combine_arrays(pw, *acc)
 
 
 def solve_one(a: Row, code: int, geo: Geometry) -> tuple[float, float]:
@@ -80,9 +104,11 @@ def solve_one(a: Row, code: int, geo: Geometry) -> tuple[float, float]:
 
 def signed_gradient(u: np.ndarray, w: np.ndarray, a_ref: np.ndarray) -> np.ndarray:
     """1000 * tan(atan2(u - a_ref, w)) = 1000 * (u - a_ref) / w per mille; NaN unless w > 0."""
+    out = np.subtract(u, a_ref)
+    np.multiply(1000.0, out, out=out)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = 1000.0 * (u - a_ref) / w
-    out[~(w > 0.0)] = np.nan
+        np.divide(out, w, out=out)
+    np.copyto(out, np.nan, where=~(w > 0.0))
     return out
 
 
@@ -93,10 +119,15 @@ def signed_gradient_one(u: float, w: float, a_ref: float) -> float:
 def magnitude_gradient(w: np.ndarray, g: float) -> np.ndarray:
     """Unsigned 1000 * tan(arccos(w/g)) written as 1000 * sqrt((1-c)(1+c)) / c, c = w/g
     clamped to 1 (noise); NaN unless c > 0. No a_ref needed: the analogue of the reference."""
-    c = np.minimum(w / g, 1.0)
+    c = np.divide(w, g)
+    np.minimum(c, 1.0, out=c)
+    out = np.subtract(1.0, c)  # in place from here: (1 - c)(1 + c), sqrt, * 1000, / c
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = 1000.0 * np.sqrt((1.0 - c) * (1.0 + c)) / c
-    out[~(c > 0.0)] = np.nan
+        out *= np.add(1.0, c)
+        np.sqrt(out, out=out)
+        np.multiply(1000.0, out, out=out)
+        np.divide(out, c, out=out)
+    np.copyto(out, np.nan, where=~(c > 0.0))
     return out
 
 

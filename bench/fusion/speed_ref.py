@@ -56,11 +56,20 @@ def leaky_min(
     Computed as rho*clock_i + running min of (x_j - rho*clock_j): exact (min does not
     round), so the same whatever the batching. ``base`` carries the running min.
     """
-    y = np.where(np.isfinite(x), x - rho * clock_s, _INF)
-    run = np.minimum.accumulate(np.concatenate(([base], y)))[1:]
+    if len(x) == 0:
+        return np.zeros(0), base
+    drift = rho * clock_s
+    y = x - drift  # non-finite exactly where x is (clock_s is finite)
+    if not np.isfinite(y).all():
+        y[~np.isfinite(x)] = _INF
+    y[0] = min(y[0], base)
+    run = np.minimum.accumulate(y, out=y)
+    last = float(run[-1])
+    if math.isfinite(run[0]) and math.isfinite(last):  # non-increasing: finite throughout
+        return np.add(drift, run, out=drift), last
     with np.errstate(invalid="ignore"):
-        out = np.where(np.isfinite(run), rho * clock_s + run, np.nan)
-    return out, float(run[-1]) if len(run) else base
+        out = np.where(np.isfinite(run), drift + run, np.nan)
+    return out, last
 
 
 def _plausible(step_ticks: np.ndarray) -> np.ndarray:
@@ -76,6 +85,8 @@ class ReferenceAcceleration:
         self.kf = SpeedKalman(settings.speed_noise_mps, settings.jerk_psd)
         self.rho = settings.clock_drift_ppm * 1e-6
         self._pending = np.zeros(0, dtype=SPEED_DTYPE)  # buffered, not yet applied
+        self._next_seq: float = _INF  # seq of the first of them
+        self._coast_s = settings.coast_s
         self._max_seq = -1  # R: largest sample seq so far
         self._board_base = _INF  # running min for the board offset
         self._odo_base = _INF  # running min for the odometer offset
@@ -93,29 +104,36 @@ class ReferenceAcceleration:
         """Keep this step's SPEED_REF frames until samples may apply them."""
         if len(speeds):
             pending = self._pending
-            self._pending = np.concatenate([pending, speeds]) if len(pending) else speeds
+            self._keep(np.concatenate([pending, speeds]) if len(pending) else speeds)
 
     def push(self, samples: np.ndarray) -> np.ndarray:
         """a_ref (m/s^2, NaN = unavailable) for each sample, in order."""
         b = samples["ticks"] * TICK_S  # board time, s
         board_off, self._board_base = leaky_min(samples["t"] - b, b, self.rho, self._board_base)
-        run_max = np.maximum.accumulate(np.maximum(samples["seq"], self._max_seq))
+        run_max = samples["seq"].astype(np.int64)
+        run_max[0] = max(run_max[0], self._max_seq)
+        np.maximum.accumulate(run_max, out=run_max)
         self._max_seq = int(run_max[-1])
-        count = np.searchsorted(self._pending["seq"], run_max, side="left")  # frames applied
-        k_new = int(count[-1])
+        # frame j applies from sample anchors[j] on: the first whose R exceeds its seq
+        anchors = np.searchsorted(run_max, self._pending["seq"], side="right")
+        k_new = int(np.searchsorted(anchors, len(b), side="left"))
         acc, when, still, ok = (np.array([v]) for v in self._last)
         if k_new:
-            anchors = np.searchsorted(count, np.arange(k_new), side="right")
+            anchors = anchors[:k_new]
             new = self._apply(self._pending[:k_new], b[anchors], board_off[anchors])
-            self._pending = self._pending[k_new:]
+            self._keep(self._pending[k_new:])
             acc, when, still, ok = (
                 np.concatenate([h, x]) for h, x in zip((acc, when, still, ok), new, strict=True)
             )
             self._last = (float(acc[-1]), float(when[-1]), bool(still[-1]), bool(ok[-1]))
-        acc, when, still, ok = acc[count], when[count], still[count], ok[count]
-        fresh = (b - when) <= self.settings.coast_s  # NaN (no frame yet) compares False
-        out = np.where(still, 0.0, acc)
-        out[~(fresh & (ok | still))] = np.nan
+        # per applied frame (and the one before them), then repeated over the samples it serves
+        value = np.where(still, 0.0, acc)
+        value[~(ok | still)] = np.nan
+        served = np.diff(np.concatenate(([0], anchors[:k_new], [len(b)])))
+        age = np.repeat(when, served)
+        np.subtract(b, age, out=age)
+        out = np.repeat(value, served)
+        np.copyto(out, np.nan, where=~(age <= self._coast_s))  # stale, or no frame yet (NaN)
         return out
 
     def step(self, ticks: int, t: float, seq: int) -> float:
@@ -123,23 +141,35 @@ class ReferenceAcceleration:
         b = ticks * TICK_S
         x = t - b
         if math.isfinite(x):
-            self._board_base = min(self._board_base, x - self.rho * b)
-        base = self._board_base
-        off = self.rho * b + base if math.isfinite(base) else math.nan
-        self._max_seq = max(self._max_seq, seq)
-        pending = self._pending
-        if len(pending) and pending["seq"][0] < self._max_seq:
-            k = int(np.searchsorted(pending["seq"], self._max_seq, side="left"))
-            rows = pending[:k]
-            self._pending = pending[k:]
-            for ts, ft, mm in zip(
-                rows["timestamp"].tolist(), rows["t"].tolist(), rows["speed"].tolist(), strict=True
-            ):
-                self._last = self._apply_one(ts, ft, mm, b, off)
+            y = x - self.rho * b
+            if y < self._board_base:  # min(base, y)
+                self._board_base = y
+        if seq > self._max_seq:
+            self._max_seq = seq
+        if self._next_seq < self._max_seq:
+            self._apply_pending(b)
         acc, when, still, ok = self._last
-        if not (b - when <= self.settings.coast_s and (ok or still)):
+        if not (b - when <= self._coast_s and (ok or still)):
             return math.nan
         return 0.0 if still else acc
+
+    def _apply_pending(self, b: float) -> None:
+        """Apply, at board time b, the buffered frames below R (for :meth:`step`)."""
+        base = self._board_base
+        off = self.rho * b + base if math.isfinite(base) else math.nan
+        pending = self._pending
+        k = int(np.searchsorted(pending["seq"], self._max_seq, side="left"))
+        rows = pending[:k]
+        self._keep(pending[k:])
+        for ts, ft, mm in zip(
+            rows["timestamp"].tolist(), rows["t"].tolist(), rows["speed"].tolist(), strict=True
+        ):
+            self._last = self._apply_one(ts, ft, mm, b, off)
+
+    def _keep(self, pending: np.ndarray) -> None:
+        """Frames still buffered, and the seq of the first (what :meth:`step` checks)."""
+        self._pending = pending
+        self._next_seq = int(pending["seq"][0]) if len(pending) else _INF
 
     # -- internals -------------------------------------------------------------------------
     def _apply(
