@@ -44,6 +44,36 @@ def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
     )
 
 
+class ResultRing:
+    """The last ``size`` results, oldest first: the history a UI draws from (the runner's,
+    and the engine's parent's, fed by the rows each snapshot brings)."""
+
+    def __init__(self, size: int) -> None:
+        self._buf = np.zeros(size, dtype=RESULT_DTYPE)
+        self._pos = 0
+        self._len = 0
+
+    def __len__(self) -> int:
+        return self._len
+
+    def extend(self, rows: np.ndarray) -> None:
+        size = len(self._buf)
+        rows = rows[-size:]
+        k = len(rows)
+        first = min(k, size - self._pos)
+        self._buf[self._pos : self._pos + first] = rows[:first]
+        self._buf[: k - first] = rows[first:]
+        self._pos = (self._pos + k) % size
+        self._len = min(size, self._len + k)
+
+    def last(self, k: int) -> np.ndarray:
+        k = max(0, min(k, self._len))
+        start = (self._pos - k) % len(self._buf)
+        if start + k <= len(self._buf):
+            return self._buf[start : start + k].copy()
+        return np.concatenate([self._buf[start:], self._buf[: self._pos]])
+
+
 @dataclass
 class Snapshot:
     """A consistent copy of the run's state for a UI; cheap enough to take at a few Hz."""
@@ -88,9 +118,7 @@ class LiveRunner:
         self._read_timeout = read_timeout
         self._stop = threading.Event()
         self._lock = threading.Lock()
-        self._ring = np.zeros(HISTORY, dtype=RESULT_DTYPE)
-        self._ring_len = 0
-        self._ring_pos = 0
+        self._ring = ResultRing(HISTORY)
         self._events: deque[tuple[float, int, str]] = deque(maxlen=500)
         self._latency: deque[float] = deque(maxlen=5000)
         self.frames_received = 0
@@ -209,36 +237,16 @@ class LiveRunner:
         res = step.results
         with self._lock:
             if len(res):
-                self._append(res)
+                self._ring.extend(res)
                 lat = now - res["t"]
                 self._latency.extend(lat[np.isfinite(lat)].tolist())
             for ev in step.events[-200:]:
                 self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
 
-    def _append(self, res: np.ndarray) -> None:
-        res = res[-HISTORY:]
-        k = len(res)
-        end = self._ring_pos + k
-        if end <= HISTORY:
-            self._ring[self._ring_pos : end] = res
-        else:
-            first = HISTORY - self._ring_pos
-            self._ring[self._ring_pos :] = res[:first]
-            self._ring[: k - first] = res[first:]
-        self._ring_pos = end % HISTORY
-        self._ring_len = min(HISTORY, self._ring_len + k)
-
-    def _last_rows(self, k: int) -> np.ndarray:
-        """A copy of the newest ``k`` ring rows, oldest first (contiguous slices, no gather)."""
-        pos = self._ring_pos
-        if k <= pos:
-            return self._ring[pos - k : pos].copy()
-        return np.concatenate((self._ring[HISTORY - (k - pos) :], self._ring[:pos]))
-
     # -- snapshot --------------------------------------------------------------------------
     def snapshot(self, last: int = HISTORY) -> Snapshot:
         with self._lock:  # held for two memcpys: the processing thread waits on it
-            results = self._last_rows(min(last, self._ring_len))
+            results = self._ring.last(last)
             stats = copy.deepcopy(self.pipeline.stats)
             events = list(self._events)
             latency = list(self._latency)

@@ -5,7 +5,9 @@ the virtual board (:func:`devices.emulator.start_virtual_board`) plays a 1 kHz x
 scenario on a private virtual channel, ``speed`` times faster than real time for the rate
 search; a :class:`devices.bus.CanBusSource` listens; a :class:`bench.live.LiveRunner`
 runs the pipeline; a :class:`bench.mcaplog.writer.McapSink` logs; optionally the TUI
-(:class:`bench.tui.app.BenchApp`) is attached, headless, polling snapshots as on a screen.
+(:class:`bench.tui.app.BenchApp`) is attached, headless, polling snapshots as on a screen --
+then, as in `bench tui`, board, source, runner, log and the latency histogram all run in the
+engine process (:mod:`bench.engine`) and the App in this one.
 
 * frames sent = the board's ``frames_sent`` (frames it handed to the bus without error);
   frames logged = frame messages in the finished MCAP file, counted by reading it back.
@@ -203,6 +205,8 @@ def run_live(
     base = board_frame_rate()
     speed = 1.0 if rate is None else rate / base
     run = LiveRun(base * speed, seconds, tui)
+    if tui:
+        return _run_live_tui(run, speed, faults, on_progress, mcap_path, workdir)
     scenario = scenario_from_dict(
         board_scenario(min(3600.0, seconds * speed + 2.0), faults=faults or []), "benchmark"
     )
@@ -220,12 +224,7 @@ def run_live(
         runner.start()
         player = start_virtual_board(sim, channel, speed=speed)
         t0 = time.perf_counter()
-        if tui:
-            run.tui_snapshots, code = _with_tui(runner, player, seconds, on_progress)
-            if code:
-                run.errors.append(f"the TUI exited with {code}")
-        else:
-            _wait(player, seconds, on_progress, runner)
+        _wait(player, seconds, on_progress, runner)
         player.stop()
         elapsed = time.perf_counter() - t0
         run.sent = player.frames_sent
@@ -265,21 +264,88 @@ def _wait(player: Any, seconds: float, on_progress: Any, runner: Any) -> None:
             on_progress(runner)
 
 
-def _with_tui(runner: Any, player: Any, seconds: float, on_progress: Any) -> tuple[int, int]:
-    """Run the bench TUI headless in this (main) thread for ``seconds``, as `bench tui` would
-    (it polls snapshots at its own rate, renders every panel); returns snapshots applied."""
-    from bench.tui.app import BenchApp
-    from bench.tui.session import Recorder, Session
+def _run_live_tui(
+    run: LiveRun,
+    speed: float,
+    faults: list[dict[str, Any]] | None,
+    on_progress: Any,
+    mcap_path: Path | None,
+    workdir: str | None,
+) -> LiveRun:
+    """The run as `bench tui --emulate` does it: board, source, runner, MCAP log and the
+    LatencySink in the engine process (:mod:`bench.engine`), the App headless in this one.
+    ``on_progress`` gets the session (it has ``snapshot`` and the engine's ``pid``)."""
+    from bench.config import Config
+    from bench.engine import start_engine
+    from bench.engine_plans import BoardPlan
 
-    session = Session(runner=runner, recorder=Recorder())
+    scenario = board_scenario(min(3600.0, run.seconds * speed + 2.0), faults=faults or [])
+    config = Config(sample_rate_hz=int(scenario.get("sample_rate_hz", 1000)))
+    with tempfile.TemporaryDirectory(prefix="bench-live-", dir=workdir) as tmp:
+        path = Path(mcap_path) if mcap_path is not None else Path(tmp) / "run.mcap"
+        plan = BoardPlan(
+            config=config,
+            scenario=scenario,
+            speed=speed,
+            mcap=path,
+            log_dir=Path(tmp),
+            description="benchmark",
+            sinks=(LatencySink,),
+        )
+        session = start_engine(plan)
+        try:
+            run.tui_snapshots, code = _with_tui(session, run.seconds, on_progress)
+            if code:
+                run.errors.append(f"the TUI exited with {code}")
+            board = session.request("drain", 60.0)
+        finally:
+            session.stop(timeout=60.0)
+        _take_engine_report(run, session, board)
+        run.logged, run.mcap_complete = _count_logged(path)
+    return run
+
+
+def _take_engine_report(run: LiveRun, session: Any, board: dict[str, Any]) -> None:
+    report = session.report
+    if report is None:
+        run.errors.append(session.runner.error or "the engine sent no report")
+        return
+    run.sent, run.board_errors = board["sent"], board["board_errors"]
+    run.rate_achieved = run.sent / board["elapsed"] if board["elapsed"] > 0 else 0.0
+    run.drain_s = board["drain_s"]
+    run.snapshot_p99_ms = float(board["snapshot_latency_ms"][1])
+    run.received, run.dropped = report.frames_received, report.frames_dropped
+    status = report.last_status or {}
+    run.mcap_dropped = int(status.get("dropped", 0)) + int(status.get("lost", 0))
+    if status.get("error"):
+        run.errors.append(f"mcap: {status['error']}")
+    if report.error:
+        run.errors.append(report.error)
+    run.errors += [f"engine: {p}" for p in report.problems]
+    run.stats = report.stats
+    lat = report.plan["sinks"][0]
+    run.results = lat.results
+    run.p50_ms, run.p99_ms, run.max_ms = lat.percentile(50), lat.percentile(99), lat.max_ms
+
+
+def _with_tui(session: Any, seconds: float, on_progress: Any) -> tuple[int, int]:
+    """Run the bench TUI headless in this (main) thread for ``seconds`` on the engine's
+    session, as `bench tui` would (it polls snapshots at its own rate, renders every
+    panel); returns snapshots applied and the App's exit code."""
+    from bench.tui.app import BenchApp
+
     app = BenchApp(session)
+
+    def board_done() -> bool:
+        snap = app.last_snapshot
+        return snap is not None and bool(snap.extra.get("emulator_done"))
 
     async def pilot(p: Any) -> None:
         end = time.perf_counter() + seconds
-        while time.perf_counter() < end and not player.done:
+        while time.perf_counter() < end and not board_done():
             await asyncio.sleep(min(1.0, max(0.0, end - time.perf_counter())))
             if on_progress is not None:
-                on_progress(runner)
+                on_progress(session)
         app.exit(0)
 
     code = app.run(headless=True, size=(160, 48), auto_pilot=pilot)

@@ -1,11 +1,12 @@
 """The TUI on a 1 kHz board: frames sent = frames received = frames logged.
 
 ``python -m benchmarks.tui_1khz [--seconds 60]`` runs the whole `bench tui --emulate` stack
-headless (App.run_test, 100x30, 4 Hz snapshots, every panel rendered): the virtual board plays
-a 1 kHz x 3 channel scenario (~3060 frames/s with BOARD_STATUS and SPEED_REF) on a private
-python-can virtual channel, a CanBusSource listens, the TUI's session runs the LiveRunner and
-records through its Recorder into an MCAP file, operator marks are pressed on the way, and
-``q`` quits exactly as an operator would (which finishes the MCAP file).
+headless (App.run_test, 100x30, 4 Hz snapshots, every panel rendered): in the engine process
+(bench/engine.py) the virtual board plays a 1 kHz x 3 channel scenario (~3060 frames/s with
+BOARD_STATUS and SPEED_REF) on a private python-can virtual channel, a CanBusSource listens,
+the session runs the LiveRunner and records through its Recorder into an MCAP file; in this
+process the App polls it, operator marks are pressed on the way, and ``q`` quits exactly as
+an operator would (which finishes the MCAP file).
 
 It then prints frames sent (the board's own count), received (the runner's), processed (the
 pipeline's), logged (frames read back from the finished MCAP file), the drop counters and the
@@ -16,18 +17,15 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import itertools
-import os
 import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-_ids = itertools.count(1)
 
 
 @dataclass
@@ -79,80 +77,85 @@ class TuiRun:
 
 
 def run(seconds: float = 60.0, workdir: str | None = None, marks: int = 3) -> TuiRun:
-    import can
-
     from bench.config import Config
-    from bench.liveopts import LiveSetup, start_recording
-    from bench.mcaplog.reader import McapLog, read_events
+    from bench.engine import start_engine
+    from bench.engine_plans import BoardPlan
     from bench.tui.app import BenchApp
-    from bench.tui.session import live_session
     from benchmarks.common import board_scenario
-    from devices.bus import CanBusSource
-    from devices.emulator import scenario_from_dict, simulate, start_virtual_board
 
     out = TuiRun(seconds)
-    scenario = scenario_from_dict(board_scenario(seconds + 1.0), "tui benchmark")
-    sim = simulate(scenario)
-    config = Config(sample_rate_hz=scenario.sample_rate_hz)
-    channel = f"bench-tui-1khz-{os.getpid()}-{next(_ids)}"
-    bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-    source = CanBusSource(bus=bus, owns_bus=True)
-    setup = LiveSetup(source, "virtual board 1 kHz", "tui-1khz")
+    scenario = board_scenario(seconds + 1.0)
+    config = Config(sample_rate_hz=int(scenario.get("sample_rate_hz", 1000)))
     with tempfile.TemporaryDirectory(prefix="bench-tui-", dir=workdir) as tmp:
         path = Path(tmp) / "tui.mcap"
-        mcap = start_recording(path, setup, config)
-        session = live_session(setup, config, mcap, Path(tmp))
-        app = BenchApp(session, poll_hz=4.0)
-
-        async def drive() -> None:
-            async with app.run_test(size=(100, 30)) as pilot:
-                session.start()
-                player = start_virtual_board(sim, channel)
-                setup.emulator = player
-                t0 = time.perf_counter()
-                end = t0 + seconds
-                mark_at = [t0 + seconds * (i + 1) / (marks + 1) for i in range(marks)]
-                while time.perf_counter() < end and not player.done:
-                    await asyncio.sleep(0.2)
-                    if mark_at and time.perf_counter() >= mark_at[0]:
-                        mark_at.pop(0)
-                        await pilot.press("m")
-                player.stop()
-                out.elapsed = time.perf_counter() - t0
-                out.sent, out.board_errors = player.frames_sent, player.errors
-                runner = session.runner
-                assert runner is not None
-                deadline = time.monotonic() + 30.0
-                while runner.frames_received < out.sent and time.monotonic() < deadline:
-                    await asyncio.sleep(0.05)  # the bus holds what was sent: let it be read
-                out.snapshots = app.snapshots_applied
-                await pilot.press("q")  # the operator's quit: stops the run, finishes the MCAP
-                deadline = time.monotonic() + 60.0
-                while app.is_running and time.monotonic() < deadline:
-                    await asyncio.sleep(0.05)
-                if app.is_running:
-                    out.errors.append("the TUI did not quit within 60 s")
-
-        asyncio.run(drive())
-        session.stop()
-        runner = session.runner
-        assert runner is not None
-        out.received = runner.frames_received
-        out.processed = runner.pipeline.seq
-        out.runner_dropped = runner.frames_dropped
-        out.log_dropped = int(getattr(mcap, "dropped", 0)) + int(getattr(mcap, "frames_lost", 0))
-        if runner.error:
-            out.errors.append(runner.error)
-        if getattr(mcap, "error", None):
-            out.errors.append(f"mcap: {mcap.error}")
-        with McapLog(path) as log:
-            frames, _, _ = log.read_frames()
-            out.logged = len(frames)
-            out.mcap_complete = bool(log.complete)
-        out.marks_logged = sum(
-            1 for e in read_events(path) if "operator mark" in str(e.get("message", e))
+        plan = BoardPlan(
+            config=config,
+            scenario=scenario,
+            mcap=path,
+            log_dir=Path(tmp),
+            description="virtual board 1 kHz",
         )
+        session = start_engine(plan)
+        try:
+            asyncio.run(_drive(BenchApp(session, poll_hz=4.0), session, out, marks))
+        finally:
+            session.stop()
+        _collect(out, session, path)
     return out
+
+
+async def _drive(app: Any, session: Any, out: TuiRun, marks: int) -> None:
+    """The operator's part: watch, press m now and then, and q once the board is done."""
+    async with app.run_test(size=(100, 30)) as pilot:
+        t0 = time.perf_counter()
+        end = t0 + out.seconds
+        mark_at = [t0 + out.seconds * (i + 1) / (marks + 1) for i in range(marks)]
+        while time.perf_counter() < end and not _board_done(app):
+            await asyncio.sleep(0.2)
+            if mark_at and time.perf_counter() >= mark_at[0]:
+                mark_at.pop(0)
+                await pilot.press("m")
+        board = await asyncio.to_thread(session.request, "drain", 30.0)
+        out.elapsed = board["elapsed"]
+        out.sent, out.board_errors = board["sent"], board["board_errors"]
+        out.snapshots = app.snapshots_applied
+        await pilot.press("q")  # the operator's quit: stops the run, finishes the MCAP
+        deadline = time.monotonic() + 60.0
+        while app.is_running and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        if app.is_running:
+            out.errors.append("the TUI did not quit within 60 s")
+
+
+def _board_done(app: Any) -> bool:
+    snap = app.last_snapshot
+    return snap is not None and bool(snap.extra.get("emulator_done"))
+
+
+def _collect(out: TuiRun, session: Any, path: Path) -> None:
+    """The engine's figures, and the finished MCAP file read back."""
+    from bench.mcaplog.reader import McapLog, read_events
+
+    report = session.report
+    if report is None:
+        out.errors.append(session.runner.error or "the engine sent no report")
+        return
+    out.received, out.processed = report.frames_received, report.frames_processed
+    out.runner_dropped = report.frames_dropped
+    status = report.last_status or {}
+    out.log_dropped = int(status.get("dropped", 0)) + int(status.get("lost", 0))
+    if report.error:
+        out.errors.append(report.error)
+    if status.get("error"):
+        out.errors.append(f"mcap: {status['error']}")
+    out.errors += [f"engine: {p}" for p in report.problems]
+    with McapLog(path) as log:
+        frames, _, _ = log.read_frames()
+        out.logged = len(frames)
+        out.mcap_complete = bool(log.complete)
+    out.marks_logged = sum(
+        1 for e in read_events(path) if "operator mark" in str(e.get("message", e))
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import devices
 from bench.config import Config, config_from_dict, load_config
-from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments, open_emulator, open_recording
+from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments
 
 DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.toml"
 
@@ -53,22 +53,15 @@ def scenario_config(path: Path) -> Config:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.commands.tui import report
-    from bench.tui.session import live_session, run_tui
+    from bench.commands.tui import show
+    from bench.engine import start_engine
+    from bench.engine_plans import EmulatorPlan, cli_values
     from devices.emulator.scenario import resolve_scenario_path
 
     path = resolve_scenario_path(args.scenario)
     config = load_config(args.config) if args.config else scenario_config(path)
-    setup = open_emulator(path, speed=args.speed)
-    try:
-        first = open_recording(
-            args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
-        )
-    except BaseException:
-        setup.close()
-        raise
     log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
-    session = live_session(setup, config, first, log_dir)
-    code = run_tui(session)
-    report(session)
-    return code
+    plan = EmulatorPlan(
+        config=config, args=cli_values(args), log_dir=log_dir, scenario=path, speed=args.speed
+    )
+    return show(start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr)))

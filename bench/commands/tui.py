@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
-from bench.config import load_config
+from bench.config import Config, load_config
 from bench.errors import BenchError
-from bench.liveopts import DEFAULT_LOG_DIR, add_live_arguments, open_live, open_recording
+from bench.liveopts import DEFAULT_LOG_DIR, add_live_arguments
 
 SPEED_CHOICES = {"1": 1.0, "1x": 1.0, "10": 10.0, "10x": 10.0, "max": None}
 
@@ -41,47 +42,62 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.tui.session import live_session, replay_setup, run_tui
-
     config = load_config(args.config)
-    warn = lambda m: print(f"bench: {m}", file=sys.stderr)  # noqa: E731
     log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
-    if args.replay:
-        given = [
-            opt
-            for opt, value in (
-                ("--emulate", args.emulate),
-                ("--interface", args.interface),
-                ("--channel", args.channel),
-                ("--serial", args.serial),
-            )
-            if value
-        ]
-        if given:
-            raise BenchError(f"--replay cannot be combined with {'/'.join(given)}")
-        setup = replay_setup(
-            args.replay, config, speed=SPEED_CHOICES[args.speed], paused=args.paused
-        )
-        first = None
-        if args.mcap and not args.no_log:
-            from bench.liveopts import start_recording
+    session = run_replay(args, config, log_dir) if args.replay else run_live(args, config, log_dir)
+    return show(session)
 
-            first = start_recording(Path(args.mcap), setup, config)
-    else:
-        setup = open_live(args)
-        try:
-            first = open_recording(args, setup, config, warn=warn)
-        except BaseException:
-            setup.close()
-            raise
-    session = live_session(setup, config, first, log_dir)
-    code = run_tui(session)
-    report(session)
-    return code
+
+def show(session: Any) -> int:
+    """The screen on a built session; the logs written are listed however it ends."""
+    from bench.tui.session import run_tui
+
+    try:
+        return run_tui(session)
+    finally:
+        report(session)
+
+
+def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
+    """Source, pipeline and log in the engine process: the screen never holds up the run."""
+    from bench.engine import start_engine
+    from bench.engine_plans import LivePlan, cli_values
+
+    plan = LivePlan(config=config, args=cli_values(args), log_dir=log_dir)
+    return start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
+
+
+def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
+    """A log replayed in this process (no latency to keep there)."""
+    from bench.tui.session import live_session, replay_setup
+
+    given = [
+        opt
+        for opt, value in (
+            ("--emulate", args.emulate),
+            ("--interface", args.interface),
+            ("--channel", args.channel),
+            ("--serial", args.serial),
+        )
+        if value
+    ]
+    if given:
+        raise BenchError(f"--replay cannot be combined with {'/'.join(given)}")
+    setup = replay_setup(args.replay, config, speed=SPEED_CHOICES[args.speed], paused=args.paused)
+    first = None
+    if args.mcap and not args.no_log:
+        from bench.liveopts import start_recording
+
+        first = start_recording(Path(args.mcap), setup, config)
+    return live_session(setup, config, first, log_dir)
 
 
 def report(session: object) -> None:
-    """After the screen closes: which logs were written, and any error the run hit."""
+    """After the screen closes: which logs were written, and any error the run hit (and what
+    the engine process printed meanwhile, which would have scribbled over the screen)."""
+    output = getattr(getattr(session, "report", None), "output", "")
+    if output:
+        sys.stderr.write(output if output.endswith("\n") else output + "\n")
     rec = getattr(session, "recorder", None)
     for path in getattr(rec, "files", []):
         print(f"bench: log written: {path}", file=sys.stderr)

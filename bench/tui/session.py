@@ -2,7 +2,9 @@
 
 The App only ever calls these methods and :meth:`Session.snapshot`; it never touches the
 runner's threads. Building a Session (which source, which log file) is the commands' job,
-so the App can be tested with a fixed snapshot and no runner at all.
+so the App can be tested with a fixed snapshot and no runner at all. A live ``bench tui`` or
+``bench demo`` builds its Session in the engine process and the App drives it through
+:class:`bench.engine.EngineSession`, which has this same API.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.config import Config
 from bench.live import HISTORY, LiveRunner, Snapshot
@@ -21,6 +23,9 @@ from bench.liveopts import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_r
 from bench.pipeline import StepOutput
 from bench.sinks import Sink
 from bench.tui.replay_source import ReplaySource, ReplayTap
+
+if TYPE_CHECKING:
+    from bench.engine import EngineSession
 
 
 class Recorder:
@@ -304,13 +309,15 @@ def replay_setup(
     return LiveSetup(source, f"replay {p.name}", f"replay-{p.stem}"[:40])
 
 
-def run_tui(session: Session, **app_kwargs: Any) -> int:
-    """Start the session, run the App in this terminal, and always stop the session."""
-    from bench.tui.app import BenchApp
-
-    app = BenchApp(session, handle_signals=True, **app_kwargs)
-    session.start()
+def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
+    """Start the session, run the App in this terminal, and always stop the session (a live
+    one runs in the engine process, :mod:`bench.engine`; the App cannot tell). Even a
+    Ctrl-C while Textual is still being imported stops the session."""
     try:
+        from bench.tui.app import BenchApp
+
+        app = BenchApp(session, handle_signals=True, **app_kwargs)
+        session.start()
         code = app.run()
     finally:
         session.stop()
