@@ -53,6 +53,10 @@ SEVERITY = {
 }
 
 
+NO_EVENTS = np.zeros(0, dtype=EVENT_DTYPE)
+"""The shared empty event array (zero-length: nothing in it can be written)."""
+
+
 def make_events(
     kind: EventKind | int,
     t: np.ndarray | float,
@@ -61,6 +65,18 @@ def make_events(
     value: np.ndarray | int = 0,
 ) -> np.ndarray:
     """Events of one kind, broadcast over the array arguments."""
+    if isinstance(t, np.ndarray) and t.ndim == 1:
+        rest = (channel, n, value)
+        if all(np.ndim(x) == 0 or np.shape(x) == t.shape for x in rest):
+            # the usual call (columns of one length, or scalars): fill the fields directly
+            out = np.empty(len(t), dtype=EVENT_DTYPE)  # every field is written below
+            out["t"] = t
+            out["kind"] = int(kind)
+            # (0-d arrays cast like the broadcast path: an out-of-range int wraps, not raises)
+            out["channel"] = np.asarray(channel)
+            out["n"] = np.asarray(n)
+            out["value"] = np.asarray(value)
+            return out
     t_arr, ch, nn, val = np.broadcast_arrays(
         np.asarray(t, dtype=np.float64), np.asarray(channel), np.asarray(n), np.asarray(value)
     )
@@ -73,12 +89,58 @@ def make_events(
     return out
 
 
+def _in_order(t: np.ndarray) -> bool:
+    """Non-decreasing (False with any NaN, which the stable sort puts last)."""
+    return bool(np.all(t[1:] >= t[:-1]))
+
+
+_FEW = 16
+"""Up to this many events are ordered in plain Python (numpy's fixed costs would dominate)."""
+_WORD = np.uint16 if EVENT_DTYPE.itemsize % 2 == 0 else np.uint8
+
+
+def _words(events: np.ndarray) -> np.ndarray:
+    """(N, k) plain-integer view of contiguous events: rows move as memory blocks, several
+    times faster than numpy's field-by-field copy of structured elements."""
+    return events.view(_WORD).reshape(len(events), -1)
+
+
+def _merge(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Stable merge of two time-ordered event arrays: each of b's events goes after every
+    event of a at the same time."""
+    if a["t"][-1] <= b["t"][0]:
+        return np.concatenate((a, b))
+    at_b = np.searchsorted(a["t"], b["t"], side="right") + np.arange(len(b))
+    out = np.empty(len(a) + len(b), dtype=EVENT_DTYPE)  # every row is written below
+    from_a = np.ones(len(out), dtype=bool)
+    from_a[at_b] = False
+    rows = _words(out)
+    rows[at_b] = _words(np.ascontiguousarray(b))
+    rows[from_a] = _words(np.ascontiguousarray(a))
+    return out
+
+
 def concat_events(parts: list[np.ndarray]) -> np.ndarray:
+    """The parts as one array in time order: the stable sort by ``t`` of their
+    concatenation (equal times keep part order, NaN last); a single part as it is. Parts
+    already in order (the usual case) are merged in linear time instead of sorted."""
     parts = [p for p in parts if len(p)]
     if not parts:
-        return np.zeros(0, dtype=EVENT_DTYPE)
+        return NO_EVENTS
+    if len(parts) == 1:
+        return parts[0]
+    if sum(len(p) for p in parts) <= _FEW:  # a live step's few: sort Python tuples
+        rows = [row for p in parts for row in p.tolist()]
+        rows.sort(key=lambda r: (r[0] != r[0], r[0]))  # stable, NaN last, like argsort
+        return np.array(rows, dtype=EVENT_DTYPE)
+    if all(_in_order(p["t"]) for p in parts):
+        out = parts[0]
+        for part in parts[1:]:
+            out = _merge(out, part)
+        return out
     out = np.concatenate(parts)
-    return out[np.argsort(out["t"], kind="stable")] if len(parts) > 1 else out
+    order = np.argsort(out["t"], kind="stable")
+    return _words(out)[order].view(EVENT_DTYPE).reshape(len(out))
 
 
 def severity(kind: int) -> str:

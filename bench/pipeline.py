@@ -3,6 +3,10 @@
 decode (protocol.batch) -> assemble (bench.assembly) -> reference fusion + estimator.
 Stateful across batches, and its output does not depend on how the stream is batched,
 so a live run and the replay of its log give the same rows bit for bit.
+
+A live step carries a few frames and usually nothing else, so every stage returns early
+(shared empty arrays) when it has nothing to do: the processing thread shares the GIL
+with acquisition and logging, and its fixed cost per step is the live latency.
 """
 
 from __future__ import annotations
@@ -11,16 +15,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.assembly import SAMPLE_DTYPE, Assembler, usable
+from bench.assembly import NO_SAMPLES, SAMPLE_DTYPE, Assembler, usable
 from bench.config import Config
-from bench.events import EVENT_DTYPE, EventKind, concat_events, make_events
-from bench.fusion.estimator import Estimator
+from bench.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse
 from bench.records import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.results import RESULT_DTYPE
 from bench.stats import Stats
 from devices.base import SourceBatch
-from protocol.batch import DecodedBatch, decode_batch
+from protocol.batch import EMPTY_DECODED, SCALAR_MAX, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
 
 _NOTICE_KINDS = {
@@ -29,6 +33,52 @@ _NOTICE_KINDS = {
     "disconnect": EventKind.DISCONNECT,
     "reconnect": EventKind.RECONNECT,
 }
+_VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
+_NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
+_NO_FRAMES = empty_frames()
+
+
+class _ByteRuns:
+    """Copies the named fields of one structured dtype into another as raw byte runs
+    (fields adjacent in both merged into one run): a byte copy per run instead of a typed,
+    unaligned copy per field, which is what dominates building a packed structured array."""
+
+    def __init__(self, dst: np.dtype, src: np.dtype, names: list[str]) -> None:
+        self.dst, self.src, self.names = dst, src, names
+        runs: list[list[int]] = []  # [dst offset, src offset, size]
+        for name in names:
+            (dt, d_off), (st, s_off) = dst.fields[name][:2], src.fields[name][:2]
+            assert dt == st, name
+            if runs and runs[-1][0] + runs[-1][2] == d_off and runs[-1][1] + runs[-1][2] == s_off:
+                runs[-1][2] += dt.itemsize
+            else:
+                runs.append([d_off, s_off, dt.itemsize])
+        self.dst_view, self.src_view = (
+            np.dtype(
+                {
+                    "names": [f"r{i}" for i in range(len(runs))],
+                    "formats": [f"V{r[2]}" for r in runs],
+                    "offsets": [r[k] for r in runs],
+                    "itemsize": dtype.itemsize,
+                }
+            )
+            for k, dtype in ((0, dst), (1, src))
+        )
+
+    def copy(self, dst: np.ndarray, src: np.ndarray) -> None:
+        if dst.dtype != self.dst or src.dtype != self.src:  # not the layouts planned for
+            for name in self.names:
+                dst[name] = src[name]
+            return
+        d, s = dst.view(self.dst_view), src.view(self.src_view)
+        for name in self.dst_view.names:
+            d[name] = s[name]
+
+
+_FROM_SAMPLE = _ByteRuns(
+    RESULT_DTYPE, SAMPLE_DTYPE, ["n", "seq", "ticks", "t", "code", "status", "present"]
+)
+_FROM_ESTIMATE = _ByteRuns(RESULT_DTYPE, ESTIMATE_DTYPE, list(ESTIMATE_DTYPE.names))
 
 
 @dataclass(slots=True)
@@ -70,14 +120,11 @@ class Pipeline:
         self.seq += len(frames)
         self.stats.count_frames(dec.can_id)
         samples, events = self.assembler.push(frames["t"], dec, seq0)
-        out = self._fuse(samples, events, frames, dec, seq0, batch)
-        return out
+        return self._fuse(samples, events, frames, dec, seq0, batch)
 
     def finish(self) -> StepOutput:
         samples, events = self.assembler.finish()
-        return self._fuse(
-            samples, events, empty_frames(), decode_batch(empty_frames()), self.seq, None
-        )
+        return self._fuse(samples, events, _NO_FRAMES, EMPTY_DECODED, self.seq, None)
 
     # -- internals -------------------------------------------------------------------------
     def _fuse(
@@ -89,11 +136,12 @@ class Pipeline:
         seq0: int,
         batch: SourceBatch | None,
     ) -> StepOutput:
-        status = status_records(frames["t"], dec, seq0)
-        speed = speed_records(frames["t"], dec, seq0)
+        t = frames["t"]
+        status = status_records(t, dec, seq0)
+        speed = speed_records(t, dec, seq0)
         results, fusion_events = self.compute(samples, speed)
         parts = [events, fusion_events]
-        if batch is not None:
+        if batch is not None and (batch.link_errors or batch.notices):
             parts.append(self._source_events(batch))
         if len(status):
             parts.append(self._state_events(status))
@@ -105,23 +153,24 @@ class Pipeline:
         all_events = concat_events(parts)
         self.stats.count_events(all_events)
         self.stats.count_results(results)
-        self._count_channel_frames(frames, dec)
+        self.stats.count_channel_frames(t, dec)
         return StepOutput(
             frames, dec.outcome, seq0, samples, results, all_events, status, speed, batch
         )
 
     def compute(self, samples: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fusion of emitted samples: reference method + estimator."""
-        res = np.zeros(len(samples), dtype=RESULT_DTYPE)
         if len(samples) == 0:
-            est, est_events = self.estimator.push(
-                samples, np.zeros((0, 3)), np.zeros((0, 3), bool), speed
+            if len(speed) == 0:  # nothing to fuse and nothing for the estimator to keep
+                return _NO_RESULTS, NO_EVENTS
+            _, est_events = self.estimator.push(
+                NO_SAMPLES, np.zeros((0, 3)), np.zeros((0, 3), bool), speed
             )
-            return res, est_events
+            return _NO_RESULTS, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
-        for name in ("n", "seq", "ticks", "t", "code", "status", "present"):
-            res[name] = samples[name]
+        res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
+        _FROM_SAMPLE.copy(res, samples)
         res["time_s"] = (samples["ticks"] - self.first_ticks) / 10000.0
         ok = usable(samples)
         acc = (samples["code"].astype(np.float64) - self._offset) * self._scale
@@ -134,24 +183,52 @@ class Pipeline:
         res["gradient"] = ref.gradient
         res["valid"] = ref.valid
         est, est_events = self.estimator.push(samples, acc, ok, speed)
-        for name in est.dtype.names:
-            res[name] = est[name]
-        return res, concat_events([self._vote_events(res), est_events])
+        _FROM_ESTIMATE.copy(res, est)
+        vote_events = self._vote_events(samples["t"], samples["n"], ref.votes)
+        return res, concat_events([vote_events, est_events])
 
-    def _vote_events(self, res: np.ndarray) -> np.ndarray:
-        """A VOTE_FAIL event whenever the set of failed votes changes to a non-empty one."""
-        mask = (~res["votes"]).astype(np.int64) @ np.array([1, 2, 4])
-        prev = np.concatenate(([self._last_fail_mask], mask[:-1]))
+    def _vote_events(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
+        """A VOTE_FAIL event whenever the set of failed votes changes to a non-empty one
+        (value: failed votes as bits 1, 2, 4), and INVALID when it becomes all three."""
+        if len(votes) <= SCALAR_MAX:
+            return self._vote_events_scalar(t, n, votes)
+        v = votes.view(np.uint8)
+        mask = 7 - (v[:, 0] | v[:, 1] << 1 | v[:, 2] << 2).astype(np.int64)
+        prev = np.empty_like(mask)
+        prev[0] = self._last_fail_mask
+        prev[1:] = mask[:-1]
         self._last_fail_mask = int(mask[-1])
-        change = (mask != prev) & (mask != 0)
-        parts = [
-            make_events(EventKind.VOTE_FAIL, res["t"][change], 0, res["n"][change], mask[change])
-        ]
-        into_invalid = change & (mask == 7)
-        parts.append(
-            make_events(EventKind.INVALID, res["t"][into_invalid], 0, res["n"][into_invalid])
+        idx = np.flatnonzero((mask != prev) & (mask != 0))
+        if len(idx) == 0:
+            return NO_EVENTS
+        m = mask[idx]
+        inv = idx[m == 7]
+        return concat_events(
+            [
+                make_events(EventKind.VOTE_FAIL, t[idx], 0, n[idx], m),
+                make_events(EventKind.INVALID, t[inv], 0, n[inv]),
+            ]
         )
-        return concat_events(parts)
+
+    def _vote_events_scalar(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
+        """Twin of the vectorised _vote_events for the few samples of a live step."""
+        prev = self._last_fail_mask
+        masks, change = [], []
+        for i, (v1, v2, v3) in enumerate(votes.tolist()):
+            m = (not v1) + 2 * (not v2) + 4 * (not v3)
+            if m != prev and m:
+                change.append(i)
+            masks.append(m)
+            prev = m
+        self._last_fail_mask = prev
+        if not change:
+            return NO_EVENTS
+        tl, nl = t.tolist(), n.tolist()
+        rows = [(tl[i], _VOTE_FAIL, 0, nl[i], masks[i]) for i in change]
+        invalid = [(tl[i], _INVALID, 0, nl[i], 0) for i in change if masks[i] == 7]
+        if invalid:  # as concat_events orders two parts: stable by time, NaN last
+            rows = sorted(rows + invalid, key=lambda r: (r[0] != r[0], r[0]))
+        return np.array(rows, dtype=EVENT_DTYPE)
 
     def _state_events(self, status: np.ndarray) -> np.ndarray:
         prev_state = -1 if self.last_status is None else int(self.last_status["state"])
@@ -178,18 +255,3 @@ class Pipeline:
             if kind is not None:
                 parts.append(make_events(kind, notice.t))
         return concat_events(parts)
-
-    def _count_channel_frames(self, frames: np.ndarray, dec: DecodedBatch) -> None:
-        good = (dec.channel > 0) & dec.ok
-        if not good.any():
-            return
-        for ch in range(3):
-            sel = good & (dec.channel == ch + 1)
-            k = int(np.count_nonzero(sel))
-            if k:
-                cs = self.stats.channels[ch]
-                times = frames["t"][sel]
-                if cs.frames == 0:
-                    cs.first_t = float(times[0])
-                cs.last_t = float(times[-1])
-                cs.frames += k

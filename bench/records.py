@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from protocol.batch import DecodedBatch
+from protocol.batch import SCALAR_MAX, DecodedBatch
 from protocol.layout import FrameKind, Outcome
 
 _STATUS, _SPEED, _OK = int(FrameKind.STATUS), int(FrameKind.SPEED), int(Outcome.OK)
@@ -27,9 +27,24 @@ SPEED_DTYPE = np.dtype(
 )
 
 
+NO_STATUS = np.zeros(0, dtype=STATUS_DTYPE)
+"""Shared empty results (zero-length: nothing to write): most steps carry neither kind."""
+NO_SPEED = np.zeros(0, dtype=SPEED_DTYPE)
+
+
+def _rows_of(dec: DecodedBatch, kind: int) -> np.ndarray | None:
+    """Indices of the valid frames of ``kind``, None when there are none."""
+    if len(dec) <= SCALAR_MAX and kind not in dec.kind.tolist():  # a live step: cheap check
+        return None
+    idx = np.flatnonzero((dec.kind == kind) & (dec.outcome == _OK))
+    return idx if len(idx) else None
+
+
 def status_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
-    idx = np.flatnonzero((dec.kind == _STATUS) & (dec.outcome == _OK))
-    out = np.zeros(len(idx), dtype=STATUS_DTYPE)
+    idx = _rows_of(dec, _STATUS)
+    if idx is None:
+        return NO_STATUS
+    out = np.empty(len(idx), dtype=STATUS_DTYPE)  # every field is written below
     out["seq"] = seq0 + idx
     out["t"] = t[idx]
     for name in ("counter", "state", "sample_rate", "temperature", "supply", "errors"):
@@ -38,8 +53,10 @@ def status_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
 
 
 def speed_records(t: np.ndarray, dec: DecodedBatch, seq0: int) -> np.ndarray:
-    idx = np.flatnonzero((dec.kind == _SPEED) & (dec.outcome == _OK))
-    out = np.zeros(len(idx), dtype=SPEED_DTYPE)
+    idx = _rows_of(dec, _SPEED)
+    if idx is None:
+        return NO_SPEED
+    out = np.empty(len(idx), dtype=SPEED_DTYPE)  # every field is written below
     out["seq"] = seq0 + idx
     out["t"] = t[idx]
     out["counter"] = dec.counter[idx]

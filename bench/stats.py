@@ -8,6 +8,25 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.events import EventKind
+from protocol.batch import SCALAR_MAX, DecodedBatch
+
+_FEW = SCALAR_MAX
+"""Up to this many rows are counted in plain Python (a live step), more with numpy."""
+_PER_CHANNEL = {
+    EventKind.CRC_ERROR: "crc_errors",
+    EventKind.GAP: "gaps",
+    EventKind.DUPLICATE: "duplicates",
+    EventKind.LATE: "late",
+    EventKind.STATUS_FLAG: "status_flagged",
+    EventKind.COUNTER_JUMP: "counter_jumps",
+}
+_TOTALS = {
+    EventKind.CRC_ERROR: "crc_errors",
+    EventKind.WRONG_DLC: "wrong_dlc",
+    EventKind.UNKNOWN_ID: "unknown_id",
+    EventKind.LINK_ERROR: "link_errors",
+    EventKind.PARSE_ERROR: "parse_errors",
+}
 
 
 @dataclass
@@ -61,41 +80,85 @@ class Stats:
         if len(events) == 0:
             return
         kinds = events["kind"]
-        self.events.update(
-            dict(zip(*(a.tolist() for a in np.unique(kinds, return_counts=True)), strict=True))
-        )
-        per_channel = {
-            EventKind.CRC_ERROR: "crc_errors",
-            EventKind.GAP: "gaps",
-            EventKind.DUPLICATE: "duplicates",
-            EventKind.LATE: "late",
-            EventKind.STATUS_FLAG: "status_flagged",
-            EventKind.COUNTER_JUMP: "counter_jumps",
-        }
-        for kind, attr in per_channel.items():
-            sel = events["channel"][kinds == kind]
-            if len(sel):
-                counts = np.bincount(sel, minlength=4)
-                for ch in range(3):
-                    setattr(
-                        self.channels[ch],
-                        attr,
-                        getattr(self.channels[ch], attr) + int(counts[ch + 1]),
-                    )
-        self.crc_errors += int(np.count_nonzero(kinds == EventKind.CRC_ERROR))
-        self.wrong_dlc += int(np.count_nonzero(kinds == EventKind.WRONG_DLC))
-        self.unknown_id += int(np.count_nonzero(kinds == EventKind.UNKNOWN_ID))
-        self.link_errors += int(np.count_nonzero(kinds == EventKind.LINK_ERROR))
-        self.parse_errors += int(np.count_nonzero(kinds == EventKind.PARSE_ERROR))
-        self.samples_lost += int(events["value"][kinds == EventKind.SAMPLES_LOST].sum())
+        if len(events) <= _FEW:
+            self._count_events_scalar(kinds.tolist(), events["channel"].tolist(), events)
+            return
+        per_kind = np.bincount(kinds).tolist()
+        pairs = np.bincount(kinds.astype(np.intp) << 8 | events["channel"]).tolist()
+
+        def count(hist: list[int], i: int) -> int:
+            return hist[i] if i < len(hist) else 0
+
+        self.events.update({k: c for k, c in enumerate(per_kind) if c})
+        for kind, attr in _PER_CHANNEL.items():
+            for ch in range(3):
+                k = count(pairs, kind << 8 | (ch + 1))
+                if k:
+                    setattr(self.channels[ch], attr, getattr(self.channels[ch], attr) + k)
+        for kind, attr in _TOTALS.items():
+            setattr(self, attr, getattr(self, attr) + count(per_kind, kind))
+        if count(per_kind, EventKind.SAMPLES_LOST):
+            self.samples_lost += int(events["value"][kinds == EventKind.SAMPLES_LOST].sum())
+
+    def _count_events_scalar(self, kinds: list[int], channels: list[int], events) -> None:
+        """count_events for the few events of a live step, without numpy calls."""
+        self.events.update(kinds)
+        for i, kind in enumerate(kinds):
+            attr = _PER_CHANNEL.get(kind)
+            ch = channels[i]
+            if attr is not None and 1 <= ch <= 3:
+                cs = self.channels[ch - 1]
+                setattr(cs, attr, getattr(cs, attr) + 1)
+            attr = _TOTALS.get(kind)
+            if attr is not None:
+                setattr(self, attr, getattr(self, attr) + 1)
+            if kind == EventKind.SAMPLES_LOST:
+                self.samples_lost += int(events["value"][i])
 
     def count_results(self, results: np.ndarray) -> None:
-        self.samples += len(results)
+        n = len(results)
+        if n == 0:
+            return
+        self.samples += n
+        if n <= _FEW:
+            self.valid += sum(results["valid"].tolist())
+            self.degraded += sum(results["degraded"].tolist())
+            for votes in results["votes"].tolist():
+                for k in range(3):
+                    self.vote_failures[k] += not votes[k]
+            return
         self.valid += int(np.count_nonzero(results["valid"]))
         self.degraded += int(np.count_nonzero(results["degraded"]))
-        fails = np.count_nonzero(~results["votes"], axis=0)
+        votes = results["votes"]
         for k in range(3):
-            self.vote_failures[k] += int(fails[k])
+            self.vote_failures[k] += n - int(np.count_nonzero(votes[:, k]))
+
+    def count_channel_frames(self, t: np.ndarray, dec: DecodedBatch) -> None:
+        """Valid frames per ADC channel, and the receive times of the first and last."""
+        if len(dec) <= _FEW:
+            channels, outcomes = dec.channel.tolist(), dec.outcome.tolist()
+            good = [(ch, i) for i, ch in enumerate(channels) if ch and not outcomes[i]]
+            if not good:
+                return
+            times = t.tolist()
+            for ch, i in good:
+                cs = self.channels[ch - 1]
+                if cs.frames == 0:
+                    cs.first_t = times[i]
+                cs.last_t = times[i]
+                cs.frames += 1
+            return
+        good = (dec.channel > 0) & (dec.outcome == 0)
+        if not good.any():
+            return
+        for ch in range(3):
+            sel = np.flatnonzero(good & (dec.channel == ch + 1))
+            if len(sel):
+                cs = self.channels[ch]
+                if cs.frames == 0:
+                    cs.first_t = float(t[sel[0]])
+                cs.last_t = float(t[sel[-1]])
+                cs.frames += len(sel)
 
     def as_dict(self) -> dict[str, object]:
         return {

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.assembly import Assembler
+from bench.assembly import SCALAR_MAX, Assembler
 from bench.events import EventKind
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
@@ -169,19 +169,28 @@ def test_unknown_id_and_wrong_dlc_are_events():
 
 # -- chunk independence: the live (frame by frame) and replay (big batch) paths agree -----
 
-fault = st.sampled_from(["ok", "ok", "ok", "drop", "dup", "swap", "crc", "flag"])
+fault = st.sampled_from(["ok", "ok", "ok", "drop", "dup", "swap", "crc", "flag", "late", "jitter"])
 
 
 @st.composite
 def faulty_stream(draw):
     n = draw(st.integers(5, 60))
-    frames: list[RawFrame] = [status_frame(200, 0.0)]
+    # with a status frame the board time places frames; without, the counter leads
+    frames: list[RawFrame] = [status_frame(200, 0.0)] if draw(st.booleans()) else []
     for k in range(n):
         frames += instant(k, codes=(k, 2 * k, 3 * k), counter0=240)
     out: list[RawFrame] = []
+    held: list[tuple[int, RawFrame]] = []  # (frames to wait, frame): arrives after its window
     for f in frames:
         what = draw(fault)
+        for i, (wait, g) in enumerate(held):
+            held[i] = (wait - 1, g)
+        out += [g for wait, g in held if wait <= 0]
+        held = [(wait, g) for wait, g in held if wait > 0]
         if what == "drop":
+            continue
+        if what == "late":
+            held.append((draw(st.integers(7, 12)), f))
             continue
         if what == "crc":
             f = RawFrame(f.t, f.can_id, f.data[:7] + bytes([f.data[7] ^ 1]))
@@ -189,12 +198,19 @@ def faulty_stream(draw):
             flagged = bytearray(f.data)
             flagged[4] = 0x04
             f = adc(f.can_id - 0x100, flagged[0], 0, flagged[5] | flagged[6] << 8, f.t, status=4)
+        if what == "jitter" and f.can_id != 0x100:  # board time off by < half a period
+            d = f.data
+            ts = (d[5] | d[6] << 8) + draw(st.integers(-20, 20))
+            f = adc(f.can_id - 0x100, d[0], d[1] | d[2] << 8 | d[3] << 16, ts, f.t, d[4])
         out.append(f)
         if what == "dup":
             out.append(f)
         if what == "swap" and len(out) >= 2:
             out[-1], out[-2] = out[-2], out[-1]
-    cuts = draw(st.lists(st.integers(1, 7), min_size=1, max_size=40))
+    out += [g for _, g in held]
+    # live-sized cuts (the scalar path) mixed with cuts past SCALAR_MAX (the vector path)
+    size = st.one_of(st.integers(1, 7), st.integers(SCALAR_MAX + 1, SCALAR_MAX + 30))
+    cuts = draw(st.lists(size, min_size=1, max_size=40))
     return out, cuts
 
 
@@ -210,6 +226,28 @@ def test_any_batching_gives_identical_samples_and_events(data):
     assert key(one_e) == key(by1_e) == key(cut_e)
     # output is in sample order with no sample emitted twice
     assert np.all(np.diff(one_s["n"]) > 0)
+
+
+@settings(max_examples=80, deadline=None)
+@given(faulty_stream())
+def test_scalar_and_vector_paths_are_twins(data):
+    """The same batches pushed through the plain-Python path and the numpy path give the
+    same samples and the same events, in the same order, step by step."""
+    frames, cuts = data
+    arr = pack(frames)
+    scalar, vector = Assembler(200), Assembler(200)
+    pos = 0
+    for size in [*cuts, len(arr)]:
+        part = arr[pos : pos + size]
+        if len(part) == 0:
+            break
+        dec = decode_batch(part)
+        s_out = scalar._push_scalar(part["t"], dec, pos)  # the twins themselves
+        v_out = vector._push_vector(part["t"], dec, pos)
+        assert s_out[0].tobytes() == v_out[0].tobytes()
+        assert s_out[1].tobytes() == v_out[1].tobytes()
+        pos += len(part)
+    assert scalar.finish()[0].tobytes() == vector.finish()[0].tobytes()
 
 
 def test_one_absurd_receive_time_costs_nothing():
