@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import queue
-import sys
 import threading
 import time
 from collections import deque
@@ -30,10 +29,6 @@ from devices.base import LiveSource, SourceBatch
 
 MAX_COALESCE = 512
 """Queued source batches merged into one pipeline step at most."""
-LIVE_SWITCH_INTERVAL_S = 0.0005
-"""The interpreter's GIL switch interval during a live run. A thread that needs the GIL (the
-processing thread, woken by a batch) waits at most this long for a busy thread (the MCAP
-writer, a UI) to let go; Python's default, 5 ms, would alone use up the latency budget."""
 HISTORY = 60_000
 """Results kept for the UI (5 min at 200 Hz, 1 min at 1 kHz)."""
 
@@ -137,8 +132,6 @@ class LiveRunner:
 
     # -- control ---------------------------------------------------------------------------
     def start(self) -> LiveRunner:
-        if sys.getswitchinterval() > LIVE_SWITCH_INTERVAL_S:
-            sys.setswitchinterval(LIVE_SWITCH_INTERVAL_S)
         self._acq.start()
         self._proc.start()
         return self

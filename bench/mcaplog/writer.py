@@ -1113,21 +1113,15 @@ class McapSink:
             self._dropped_reported = self.dropped
             t = float(step.frames["t"][0]) if n else self._last_t
             enc.write_events(make_events(EventKind.DROPPED, t, value=delta), wall, name="logger")
-        # between topics the writer lets go of the GIL (time.sleep(0)): a processing thread
-        # waiting for it gets it now, not after the interpreter's switch interval
         enc.write_frames(step.frames, step.outcome, wall, starts)
         if step.batch is not None:
             enc.write_link_errors(step.batch.link_errors, wall)
             enc.write_notices(step.batch.notices, wall)
-        time.sleep(0)
         enc.write_samples(step.samples, wall)
-        time.sleep(0)
         enc.write_results(step.results, wall)
-        time.sleep(0)
         enc.write_status(step.status, wall)
         enc.write_speed(step.speed, wall)
         enc.write_events(step.events, wall)
-        time.sleep(0)
         self._health(step, wall)
         if self._file is not None and self._file.pending_messages:
             self._opened(since)
