@@ -5,7 +5,6 @@ records are encoded exactly, whatever the batching."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import numpy as np
@@ -16,20 +15,11 @@ from bench.events import EVENT_DTYPE, EventKind, describe, severity
 from bench.mcaplog import schemas as S
 from bench.mcaplog.reader import McapLog, read_events, read_frames, read_results
 from bench.mcaplog.writer import McapFile, McapSink, MessageEncoder
-from bench.results import CsvWriter
 from devices.mcap_file import McapFrameSource
-from tests.test_mcap_support import emulated, run_pipeline, synthetic_stream, uart_batches
+from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
 
 REPLAY_TOPICS = {S.FRAME_TOPIC, S.LINK_ERROR_TOPIC, S.NOTICE_TOPIC}
 FOXGLOVE_LEVEL = {"info": 2, "warning": 3, "error": 4}
-
-
-def csv_text(results: np.ndarray) -> str:
-    buf = io.StringIO()
-    w = CsvWriter(buf)
-    w.write(results)
-    w.close()
-    return buf.getvalue()
 
 
 @pytest.fixture(scope="module")

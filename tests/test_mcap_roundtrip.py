@@ -7,7 +7,6 @@ derived topics carry the pipeline's values exactly (floats via repr, NaN via nul
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import time
@@ -35,20 +34,11 @@ from bench.mcaplog.reader import (
 )
 from bench.mcaplog.writer import McapSink, write_emulation
 from bench.pipeline import StepOutput
-from bench.results import CsvWriter
 from devices.base import SourceBatch
 from devices.mcap_file import McapFrameSource
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import Outcome
-from tests.test_mcap_support import emulated, run_pipeline, synthetic_stream, uart_batches
-
-
-def csv_text(results: np.ndarray) -> str:
-    buf = io.StringIO()
-    w = CsvWriter(buf)
-    w.write(results)
-    w.close()
-    return buf.getvalue()
+from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
 
 
 def live_run(path: Path, batches: list[SourceBatch], config: Config | None = None, **kw: object):

@@ -7,6 +7,7 @@ mismatch elsewhere.
 
 from __future__ import annotations
 
+import io
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -17,7 +18,7 @@ import numpy as np
 
 from bench.config import Config
 from bench.pipeline import Pipeline, StepOutput
-from bench.results import RESULT_DTYPE
+from bench.results import RESULT_DTYPE, CsvWriter
 from devices.base import SourceBatch, SourceNotice
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
@@ -36,6 +37,15 @@ class Stream:
 
     def counts_by_id(self) -> Counter[int]:
         return Counter(self.frames["id"].tolist())
+
+
+def csv_text(results: np.ndarray) -> str:
+    """Results as the CSV `bench replay --csv` writes (the text two runs must agree on)."""
+    buf = io.StringIO()
+    w = CsvWriter(buf)
+    w.write(results)
+    w.close()
+    return buf.getvalue()
 
 
 def _us(t: float) -> float:
