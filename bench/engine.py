@@ -343,13 +343,7 @@ class EngineSession:
         self.recorder.update(False, False)
 
     def _reap(self) -> None:
-        proc = self._process
-        proc.join(10.0)
-        for end in (proc.terminate, proc.kill):
-            if proc.exitcode is not None:
-                break
-            end()
-            proc.join(5.0)
+        _end_process(self._process, 10.0)
         self._channel.close()
 
     def _on_gone(self) -> None:
@@ -428,7 +422,12 @@ def _abandon(proc: Any, conn: Any) -> None:
     make sure the process is gone."""
     with contextlib.suppress(OSError):
         conn.close()
-    proc.join(30.0)
+    _end_process(proc, 30.0)
+
+
+def _end_process(proc: Any, grace_s: float) -> None:
+    """Wait ``grace_s`` for the process to end by itself, then terminate, then kill it."""
+    proc.join(grace_s)
     for end in (proc.terminate, proc.kill):
         if proc.exitcode is not None:
             break

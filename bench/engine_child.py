@@ -110,19 +110,21 @@ def portable(exc: BaseException) -> BaseException:
         return RuntimeError(f"{type(exc).__name__}: {exc}")
 
 
-class _Problems(logging.Handler):
-    """Exceptions in threads and ERROR records: the parent cannot see this process's."""
+class ProblemLog(logging.Handler):
+    """Exceptions in threads and ERROR records, collected (the engine's parent cannot see
+    this process's; the soak checks its own run with the same)."""
 
     def __init__(self) -> None:
         super().__init__(logging.ERROR)
         self.seen: list[str] = []
+        self._previous_hook = threading.excepthook
 
     def emit(self, record: logging.LogRecord) -> None:
         self.seen.append(f"{record.name}: {record.getMessage()}")
 
     def install(self) -> None:
         logging.getLogger().addHandler(self)
-        previous = threading.excepthook
+        previous = self._previous_hook = threading.excepthook
 
         def hook(args: threading.ExceptHookArgs) -> None:
             name = args.thread.name if args.thread else "?"
@@ -131,6 +133,10 @@ class _Problems(logging.Handler):
 
         threading.excepthook = hook
 
+    def uninstall(self) -> None:
+        threading.excepthook = self._previous_hook
+        logging.getLogger().removeHandler(self)
+
 
 def child_main(conn: Any, plan: EnginePlan) -> None:
     """The engine process's entry point (a multiprocessing target)."""
@@ -138,7 +144,7 @@ def child_main(conn: Any, plan: EnginePlan) -> None:
         signal.signal(sig, signal.SIG_IGN)  # until the run exists; then SIGTERM stops it
     if hasattr(signal, "pthread_sigmask"):
         signal.pthread_sigmask(signal.SIG_UNBLOCK, SIGNALS)
-    problems = _Problems()
+    problems = ProblemLog()
     problems.install()
     warnings: list[str] = []
     session: Any = None
@@ -169,7 +175,7 @@ class _Server:
     """Answers the parent's requests for one running session (see the module docstring)."""
 
     def __init__(
-        self, conn: Any, session: Any, tap: RowTap, plan: EnginePlan, problems: _Problems
+        self, conn: Any, session: Any, tap: RowTap, plan: EnginePlan, problems: ProblemLog
     ) -> None:
         self.conn = conn
         self.session = session

@@ -25,13 +25,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
+from bench.engine_child import ProblemLog
 from benchmarks.common import machine_info, rss_mb
 
 UART_ONLY = {"noise", "truncation"}
@@ -80,15 +79,6 @@ def engine_rss_mb(session: Any) -> float:
     return 0.0
 
 
-class _ErrorLog(logging.Handler):
-    def __init__(self) -> None:
-        super().__init__(logging.ERROR)
-        self.records: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append(f"{record.name}: {record.getMessage()}")
-
-
 def soak(
     minutes: float,
     *,
@@ -102,16 +92,8 @@ def soak(
     seconds = minutes * 60.0
     warmup = min(60.0, max(5.0, 0.3 * seconds))
     faults = fault_schedule(seconds + 2.0)
-    thread_errors: list[str] = []
-    error_log = _ErrorLog()
-    logging.getLogger().addHandler(error_log)
-    old_hook = threading.excepthook
-
-    def hook(args: threading.ExceptHookArgs) -> None:
-        thread_errors.append(f"{args.thread.name if args.thread else '?'}: {args.exc_value!r}")
-        old_hook(args)
-
-    threading.excepthook = hook
+    problems = ProblemLog()
+    problems.install()
     mem: list[tuple[float, float]] = [(0.0, rss_mb())]
     t0 = time.monotonic()
     last_print = [0.0]
@@ -135,8 +117,7 @@ def soak(
     try:
         run = run_live(None, seconds, tui=tui, faults=faults, on_progress=progress, mcap_path=mcap)
     finally:
-        threading.excepthook = old_hook
-        logging.getLogger().removeHandler(error_log)
+        problems.uninstall()
     mem.append((time.monotonic() - t0, rss_mb()))
     after = [m for t, m in mem if t >= warmup]
     base = after[0] if after else mem[-1][1]
@@ -148,7 +129,7 @@ def soak(
         "bench kept up (all frames through within 0.5 s of the end)": run.drain_s <= KEEP_UP_S,
         "MCAP complete": run.mcap_complete,
         f"memory growth after warm-up <= {mem_bound_mb:g} MB": growth <= mem_bound_mb,
-        "no exception": not (run.errors or thread_errors or error_log.records),
+        "no exception": not (run.errors or problems.seen),
         "ran the full time": run.seconds >= seconds and run.rate_achieved > 0,
     }
     result = {
@@ -167,7 +148,7 @@ def soak(
             "warmup_s": warmup,
             "timeline": [(round(t, 1), round(m, 1)) for t, m in mem[:: max(1, len(mem) // 60)]],
         },
-        "exceptions": run.errors + thread_errors + error_log.records,
+        "exceptions": run.errors + problems.seen,
         "machine": machine_info(),
     }
     return result
