@@ -137,9 +137,26 @@ def open_recording(
     return start_recording(path, setup, config)
 
 
-def start_recording(path: Path, setup: LiveSetup, config: Config) -> Any:
-    from bench.mcaplog.writer import McapSink
+LOG_WRITER_ENV = "BENCH_LOG_WRITER"
+"""``process`` (default): live logs are encoded in a writer process of their own (see
+:mod:`bench.mcaplog.writer_process`); ``thread``: in a thread of the bench process."""
 
+
+def recording_sink_class() -> type:
+    """The sink class a live recording uses, as BENCH_LOG_WRITER says."""
+    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.writer_process import McapProcessSink
+
+    mode = os.environ.get(LOG_WRITER_ENV, "process").strip().lower() or "process"
+    if mode == "thread":
+        return McapSink
+    if mode == "process":
+        return McapProcessSink
+    raise BenchError(f"{LOG_WRITER_ENV} must be 'process' or 'thread', got {mode!r}")
+
+
+def start_recording(path: Path, setup: LiveSetup, config: Config) -> Any:
+    sink_class = recording_sink_class()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -149,4 +166,4 @@ def start_recording(path: Path, setup: LiveSetup, config: Config) -> Any:
         attachments.append((Path(config.path).name, Path(config.path).read_bytes()))
     if setup.scenario_path is not None:
         attachments.append((setup.scenario_path.name, setup.scenario_path.read_bytes()))
-    return McapSink(path, config, run_metadata(setup, config), attachments)
+    return sink_class(path, config, run_metadata(setup, config), attachments)

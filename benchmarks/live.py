@@ -4,7 +4,7 @@ One run (:func:`run_live`) is what ``bench run --emulate`` / ``bench tui --emula
 the virtual board (:func:`devices.emulator.start_virtual_board`) plays a 1 kHz x 3 channel
 scenario on a private virtual channel, ``speed`` times faster than real time for the rate
 search; a :class:`devices.bus.CanBusSource` listens; a :class:`bench.live.LiveRunner`
-runs the pipeline; a :class:`bench.mcaplog.writer.McapSink` logs; optionally the TUI
+runs the pipeline; the live MCAP sink (:mod:`bench.mcaplog.writer_process`) logs; optionally the TUI
 (:class:`bench.tui.app.BenchApp`) is attached, headless, polling snapshots as on a screen --
 then, as in `bench tui`, board, source, runner, log and the latency histogram all run in the
 engine process (:mod:`bench.engine`) and the App in this one.
@@ -62,7 +62,7 @@ class LatencySink:
     def __init__(self) -> None:
         self._hist = np.zeros(self.BINS + 2, dtype=np.int64)  # [under, bins..., over]
         self._hist[:] = 0  # touch the pages now, not during the run
-        self._scale = self.BINS / np.log(self.HI_MS / self.LO_MS)
+        self._scale = self.BINS / math.log(self.HI_MS / self.LO_MS)
         self.max_ms = float("nan")
         self.n = 0
         self.frames = 0
@@ -72,18 +72,19 @@ class LatencySink:
         now = time.time()
         self.frames += len(step.frames)
         res = step.results
-        if len(res):
-            self.results += len(res)
-            lat = (now - res["t"]) * 1000.0
-            lat = lat[np.isfinite(lat)]
-            if len(lat):
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    pos = np.log(np.maximum(lat, self.LO_MS * 0.5) / self.LO_MS) * self._scale
-                idx = np.clip(np.floor(pos).astype(np.int64) + 1, 0, self.BINS + 1)
-                np.add.at(self._hist, idx, 1)
-                self.n += len(lat)
-                m = float(lat.max())
-                self.max_ms = m if not self.max_ms >= m else self.max_ms
+        if len(res) == 0:
+            return
+        self.results += len(res)
+        hist, top = self._hist, self.BINS + 1
+        for t in res["t"].tolist():  # a live step has a result or two: plain floats are cheapest
+            lat = (now - t) * 1000.0
+            if not math.isfinite(lat):
+                continue
+            pos = math.log(max(lat, self.LO_MS * 0.5) / self.LO_MS) * self._scale
+            hist[min(max(math.floor(pos) + 1, 0), top)] += 1
+            self.n += 1
+            if not self.max_ms >= lat:
+                self.max_ms = lat
 
     def mark(self, t: float, text: str) -> None:
         pass
@@ -198,7 +199,7 @@ def run_live(
 
     from bench.config import Config
     from bench.live import LiveRunner
-    from bench.mcaplog.writer import McapSink
+    from bench.liveopts import recording_sink_class
     from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, simulate, start_virtual_board
 
@@ -218,7 +219,8 @@ def run_live(
     lat = LatencySink()
     with tempfile.TemporaryDirectory(prefix="bench-live-", dir=workdir) as tmp:
         path = Path(mcap_path) if mcap_path is not None else Path(tmp) / "run.mcap"
-        mcap = McapSink(path, config, {"source": "benchmark virtual board", "mode": "benchmark"})
+        sink_class = recording_sink_class()  # what `bench run` logs with
+        mcap = sink_class(path, config, {"source": "benchmark virtual board", "mode": "benchmark"})
         runner = LiveRunner(source, config, [mcap, lat], description="benchmark")
         runner.recording = mcap
         runner.start()

@@ -197,6 +197,7 @@ def test_tui_survives_disk_full_and_shows_it(
     monkeypatch.setattr(
         writer, "open", lambda *a, **k: _FailingFile(real_open(*a, **k)), raising=False
     )
+    monkeypatch.setenv("BENCH_LOG_WRITER", "thread")  # the failing file is in this process
     session, _, first = _session(tmp_path, f"disk-tui-{id(tmp_path)}")
     app = BenchApp(session, poll_hz=10.0)
 
@@ -210,7 +211,9 @@ def test_tui_survives_disk_full_and_shows_it(
             await _until(lambda: runner.frames_received > seen + 600, 10, "acquisition after it")
             await _until(lambda: app.snapshots_applied > shown + 3, 10, "the screen updating")
             await pilot.pause()
-            assert "Nospaceleftondevice" in _panel_text(app, "#recording")
+            assert "Nospaceleft" in _panel_text(app, "#recording")  # long lines are cropped
+            header = _panel_text(app, "#status-bar")
+            assert "LOGFAILED" in header and "REC" not in header.replace("LOGFAILED", "")
             assert runner.error is None
             await pilot.press("q")
             await _until(lambda: not app.is_running, 15, "the app to quit")

@@ -18,11 +18,12 @@ from bench.mcaplog.reader import McapLog
 ROOT = Path(__file__).resolve().parents[1]
 
 WRITER = r"""
-import signal, sys, time
+import importlib, signal, sys, time
 import numpy as np
 sys.path.insert(0, sys.argv[3])
 from bench.config import Config
-from bench.mcaplog.writer import McapSink
+module, name = sys.argv[4].rsplit(".", 1)
+McapSink = getattr(importlib.import_module(module), name)
 from bench.pipeline import StepOutput
 from protocol.frames import FRAME_DTYPE
 
@@ -52,9 +53,15 @@ print("closed", sink.frames_logged, sink.error, flush=True)
 """
 
 
-def start_writer(path: Path, flush_s: float = 0.5) -> subprocess.Popen[str]:
+THREAD_SINK = "bench.mcaplog.writer.McapSink"
+PROCESS_SINK = "bench.mcaplog.writer_process.McapProcessSink"
+
+
+def start_writer(
+    path: Path, flush_s: float = 0.5, sink: str = THREAD_SINK
+) -> subprocess.Popen[str]:
     proc = subprocess.Popen(
-        [sys.executable, "-c", WRITER, str(path), str(flush_s), str(ROOT)],
+        [sys.executable, "-c", WRITER, str(path), str(flush_s), str(ROOT), sink],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -97,10 +104,40 @@ def test_kill_9_loses_at_most_about_a_second(tmp_path: Path) -> None:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_kill_9_of_the_bench_leaves_a_finished_file_with_the_writer_process(
+    tmp_path: Path,
+) -> None:
+    """The writer process finishes the file when the bench process's pipe closes: what was
+    handed over (all but the last group interval) is in a complete file."""
+    path = tmp_path / "killed-parent.mcap"
+    proc = start_writer(path, sink=PROCESS_SINK)
+    time.sleep(2.5)
+    os.kill(proc.pid, signal.SIGKILL)
+    out, _ = proc.communicate(timeout=10)
+    sent = sent_lines(out)
+    last_sent_t, total = sent[-1]
+    deadline = time.monotonic() + 20
+    while True:
+        with McapLog(path) as lg:
+            if lg.complete or time.monotonic() > deadline:
+                break
+        time.sleep(0.2)
+    with McapLog(path) as lg:
+        assert lg.complete, lg.warnings
+        frames, _, _ = lg.read_frames()
+    lost_s = last_sent_t - float(frames["t"][-1])
+    print(f"kill -9 (writer process): {total - len(frames)} of {total} lost ({lost_s:.3f} s)")
+    assert lost_s <= 0.5
+    counters = frames["data"][:, 0]
+    assert np.array_equal(counters, np.arange(len(frames)) & 255)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+@pytest.mark.parametrize("sink", [THREAD_SINK, PROCESS_SINK])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_clean_stop_writes_the_summary(tmp_path: Path, sig: int) -> None:
+def test_clean_stop_writes_the_summary(tmp_path: Path, sig: int, sink: str) -> None:
     path = tmp_path / "stopped.mcap"
-    proc = start_writer(path)
+    proc = start_writer(path, sink=sink)
     time.sleep(1.0)
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=20)

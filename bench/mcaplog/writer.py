@@ -864,6 +864,9 @@ class McapSink:
     caller: it is kept in ``error``, logged loudly, and everything after it is counted in
     ``frames_lost``. Counters: ``frames_logged`` (frames in flushed chunks),
     ``bytes_written``, ``dropped``, ``frames_lost``, ``errors``.
+
+    ``threaded=False``: no writer thread; the owner calls the writer-side methods itself
+    (the writer process of :mod:`bench.mcaplog.writer_process` does).
     """
 
     def __init__(
@@ -879,6 +882,7 @@ class McapSink:
         compression: str = "zstd",
         health_interval_s: float = 1.0,
         group_interval_s: float = DEFAULT_GROUP_INTERVAL_S,
+        threaded: bool = True,
     ) -> None:
         self.path = Path(path)
         self.config = config
@@ -920,8 +924,9 @@ class McapSink:
         self._thread = threading.Thread(
             target=self._run, name=f"mcap-writer:{self.path.name}", daemon=True
         )
-        self._thread.start()
-        atexit.register(self.close)
+        if threaded:  # else the owner drives _handle_items/_flush/_finish (writer_process)
+            self._thread.start()
+            atexit.register(self.close)
 
     # -- caller side (acquisition thread) --------------------------------------------------
     def write(self, step: StepOutput) -> None:
@@ -958,7 +963,8 @@ class McapSink:
                 break
             except queue.Full:
                 continue
-        self._thread.join()
+        if self._thread.ident is not None:  # never started when not threaded
+            self._thread.join()
 
     def __enter__(self) -> McapSink:
         return self

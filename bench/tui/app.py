@@ -35,7 +35,14 @@ from bench.tui.panels.board import BoardPanel
 from bench.tui.panels.channels import ChannelsPanel, RateMeter
 from bench.tui.panels.events import EventsPanel
 from bench.tui.panels.pairs import PairsPanel
-from bench.tui.panels.plot import WINDOWS_S, GradientPlot, Plot, prepare_series, render_plot
+from bench.tui.panels.plot import (
+    WINDOWS_S,
+    GradientPlot,
+    Plot,
+    PlotPacer,
+    prepare_series,
+    render_plot,
+)
 from bench.tui.panels.recording import RecordingPanel
 from bench.tui.replay_source import ReplayStatus, speed_label
 from bench.tui.session import Session
@@ -105,6 +112,7 @@ class BenchApp(App[int]):
         self._rates = RateMeter()
         self._plot = Plot()
         self._plot_lock = threading.Lock()
+        self.plot_pacer = PlotPacer()
         self._failure_seen: object = None
         self.stop_error: str | None = None
         self.marks = 0  # operator marks (the runner also counts tolerance changes as marks)
@@ -174,13 +182,20 @@ class BenchApp(App[int]):
         self.post_message(SnapshotReady(snap, plot, rates))
 
     def _prepare(
-        self, snap: Snapshot, width: int, height: int, *, rates: bool = True
-    ) -> tuple[Text, list[float]]:
-        """The heavy part of a display update: thin the series and draw the plot."""
+        self, snap: Snapshot, width: int, height: int, *, rates: bool = True, force: bool = False
+    ) -> tuple[Text | None, list[float]]:
+        """The heavy part of a display update: thin the series and draw the plot -- when the
+        pacer says it is due (None: keep the plot on screen)."""
+        rate_values = self._rates.update(snap.stats, snap.wall) if rates else []
+        pacer = self.plot_pacer
+        if not (force or pacer.due()):
+            return None, rate_values
         series = prepare_series(snap.results, self.window_s, max_points=max(50, 2 * width))
         with self._plot_lock:
+            started = pacer.clock()
             plot = render_plot(self._plot, series, width, height)
-        return plot, self._rates.update(snap.stats, snap.wall) if rates else []
+            pacer.drew(started, pacer.clock() - started)
+        return plot, rate_values
 
     def _rows_needed(self) -> int:
         rate = self.session.runner.config.sample_rate_hz if self.session.runner else 1000
@@ -205,11 +220,11 @@ class BenchApp(App[int]):
         """Show a snapshot now, on the UI thread (tests, and fixed-snapshot sessions)."""
         self.last_snapshot = snap
         size = self.query_one(GradientPlot).content_size
-        plot, rates = self._prepare(snap, size.width, size.height)
+        plot, rates = self._prepare(snap, size.width, size.height, force=True)
         self._apply(snap, plot, rates)
         self._update_status_bar()
 
-    def _apply(self, snap: Snapshot, plot: Text, rates: list[float]) -> None:
+    def _apply(self, snap: Snapshot, plot: Text | None, rates: list[float]) -> None:
         if not self.is_running or (self.quitting and not snap.running):
             return
         row = self._row(snap)
@@ -217,7 +232,7 @@ class BenchApp(App[int]):
             row, snap.tolerance_permil, cursor=self.cursor_n is not None
         )
         self.query_one(ChannelsPanel).show(row, snap.stats, rates)
-        self.query_one(GradientPlot).show(plot, plot_size(plot))
+        self.query_one(GradientPlot).show(plot, plot_size(plot) if plot is not None else None)
         self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
         self.query_one(RecordingPanel).show(snap.recording, snap.extra.get("last_recording"))
         self.query_one(EventsPanel).show(snap.events)
@@ -230,8 +245,9 @@ class BenchApp(App[int]):
         size = widget.content_size
         if snap is None or size.width <= 0 or size.height <= 0 or self.display_paused:
             return
-        plot, _ = self._prepare(snap, size.width, size.height, rates=False)
-        widget.show(plot, plot_size(plot))
+        plot, _ = self._prepare(snap, size.width, size.height, rates=False, force=True)
+        if plot is not None:
+            widget.show(plot, plot_size(plot))
 
     def _row(self, snap: Snapshot) -> np.void | None:
         res = snap.results
@@ -356,6 +372,7 @@ class BenchApp(App[int]):
         i = WINDOWS_S.index(self.window_s) if self.window_s in WINDOWS_S else -1
         self.window_s = WINDOWS_S[(i + 1) % len(WINDOWS_S)]
         self.query_one("#plot").border_title = self._plot_title()
+        self.plot_pacer.force()  # the next snapshot draws the new window
 
     def action_play_pause(self) -> None:
         if self.session.replay is None:

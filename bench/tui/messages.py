@@ -9,9 +9,9 @@ from bench.live import Snapshot
 
 
 class SnapshotReady(Message):
-    """A snapshot was taken and the plot drawn off the UI thread."""
+    """A snapshot was taken and the plot drawn off the UI thread (None: not redrawn)."""
 
-    def __init__(self, snapshot: Snapshot, plot: Text, rates: list[float]) -> None:
+    def __init__(self, snapshot: Snapshot, plot: Text | None, rates: list[float]) -> None:
         super().__init__()
         self.snapshot = snapshot
         self.plot = plot

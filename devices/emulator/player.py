@@ -53,8 +53,14 @@ class _PacedPlayer(threading.Thread):
         try:
             while self._next < n and not self._halt.is_set():
                 now = (time.perf_counter() - self._started_at) * self.speed
-                j = int(np.searchsorted(times, now, side="right"))
-                if j > self._next:
+                i = self._next
+                if times[i] > now:  # the usual case at real-time pace: nothing due yet
+                    j = i
+                elif i + 1 == n or times[i + 1] > now:  # exactly one due (no numpy call)
+                    j = i + 1
+                else:
+                    j = int(np.searchsorted(times, now, side="right"))
+                if j > i:
                     j = min(j, self._next + 4096)  # stay responsive to stop()
                     self._emit(self._next, j)
                     self._next = j

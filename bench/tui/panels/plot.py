@@ -7,6 +7,9 @@ the poller thread (:func:`prepare_series`), so the UI thread only draws a few hu
 from __future__ import annotations
 
 import itertools
+import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +27,41 @@ TRACES = (
     ("g13", "g13", "yellow"),
     ("signed", "ours", "green"),
 )
+
+
+PLOT_CPU_SHARE = 0.15
+"""At most this share of one core goes to drawing the plot (see :class:`PlotPacer`)."""
+
+
+class PlotPacer:
+    """Decides when the plot is drawn again: plotext needs 50-150 ms per drawing, which at
+    the 4 Hz poll rate is half a core -- taken, on a two-core bench PC, from the engine
+    process whose latency it then spoils. So the plot is redrawn no sooner than its last
+    drawing time / ``share`` after that drawing started (about 1 Hz for a wide terminal);
+    the number panels keep the poll rate. A forced drawing (new window or size, a replay
+    step) is always due."""
+
+    def __init__(
+        self, share: float = PLOT_CPU_SHARE, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self.share = share
+        self.clock = clock
+        self._next = -math.inf
+        self.drawn = 0
+        self.skipped = 0
+
+    def due(self) -> bool:
+        if self.clock() >= self._next:
+            return True
+        self.skipped += 1
+        return False
+
+    def force(self) -> None:
+        self._next = -math.inf
+
+    def drew(self, started: float, seconds: float) -> None:
+        self.drawn += 1
+        self._next = started + seconds / self.share
 
 
 @dataclass
