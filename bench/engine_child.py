@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.arrays import concat_records
 from bench.engine_plans import EnginePlan
 from bench.live import HISTORY
 from bench.pipeline import StepOutput
@@ -68,7 +69,7 @@ class RowTap:
             parts, self._parts, self._rows = self._parts, [], 0
         if not parts:
             return np.zeros(0, dtype=RESULT_DTYPE)
-        rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        rows = concat_records(parts)  # np.concatenate: ~50 us of GIL per part
         return rows[-self._limit :]
 
     def mark(self, t: float, text: str) -> None:

@@ -9,7 +9,6 @@ pipeline and hands each step to the sinks, which queue their own I/O; the UI cop
 from __future__ import annotations
 
 import contextlib
-import copy
 import queue
 import threading
 import time
@@ -19,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.arrays import concat_records
 from bench.config import Config
 from bench.events import EventKind, describe, make_events
 from bench.pipeline import Pipeline, StepOutput
@@ -38,7 +38,7 @@ def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
     if len(parts) == 1:
         return parts[0]
     return SourceBatch(
-        np.concatenate([p.frames for p in parts]),
+        concat_records([p.frames for p in parts]),
         [e for p in parts for e in p.link_errors],
         [n for p in parts for n in p.notices],
     )
@@ -72,6 +72,32 @@ class ResultRing:
         if start + k <= len(self._buf):
             return self._buf[start : start + k].copy()
         return np.concatenate([self._buf[start:], self._buf[: self._pos]])
+
+
+class LatencyRing:
+    """The last ``size`` frame-to-result latencies (s), finite ones only, in a numpy ring:
+    a snapshot copies 40 kB instead of turning a deque of floats into an array."""
+
+    def __init__(self, size: int) -> None:
+        self._buf = np.zeros(size, dtype=np.float64)
+        self._n = 0  # values written so far
+
+    def extend(self, lat: np.ndarray) -> None:
+        lat = lat[np.isfinite(lat)]
+        size = len(self._buf)
+        if len(lat) >= size:  # the newest value lands where the ring would have put it
+            self._n += len(lat)
+            self._buf[:] = np.roll(lat[-size:], self._n % size)
+            return
+        i = self._n % size
+        k = min(len(lat), size - i)
+        self._buf[i : i + k] = lat[:k]
+        self._buf[: len(lat) - k] = lat[k:]
+        self._n += len(lat)
+
+    def values(self) -> np.ndarray:
+        """A copy of the values kept (order does not matter for percentiles)."""
+        return self._buf[: min(self._n, len(self._buf))].copy()
 
 
 @dataclass
@@ -120,7 +146,7 @@ class LiveRunner:
         self._lock = threading.Lock()
         self._ring = ResultRing(HISTORY)
         self._events: deque[tuple[float, int, str]] = deque(maxlen=500)
-        self._latency: deque[float] = deque(maxlen=5000)
+        self._latency = LatencyRing(5000)
         self.frames_received = 0
         self.frames_dropped = 0
         self.marks = 0
@@ -238,8 +264,7 @@ class LiveRunner:
         with self._lock:
             if len(res):
                 self._ring.extend(res)
-                lat = now - res["t"]
-                self._latency.extend(lat[np.isfinite(lat)].tolist())
+                self._latency.extend(now - res["t"])
             for ev in step.events[-200:]:
                 self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
 
@@ -247,18 +272,13 @@ class LiveRunner:
     def snapshot(self, last: int = HISTORY) -> Snapshot:
         with self._lock:  # held for two memcpys: the processing thread waits on it
             results = self._ring.last(last)
-            stats = copy.deepcopy(self.pipeline.stats)
+            stats = self.pipeline.stats.copy()
             events = list(self._events)
-            latency = list(self._latency)
-        lat = np.array(latency) * 1000.0
+            lat = self._latency.values()
         rec = None
         if self.recording is not None:
             rec = getattr(self.recording, "status", lambda: None)()
-        p50, p99 = (
-            (float(np.percentile(lat, 50)), float(np.percentile(lat, 99)))
-            if len(lat)
-            else (np.nan, np.nan)
-        )
+        p50, p99 = np.percentile(lat * 1000.0, (50, 99)).tolist() if len(lat) else (np.nan, np.nan)
         return Snapshot(
             wall=time.time(),
             source=self.description,

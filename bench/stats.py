@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -67,6 +67,18 @@ class Stats:
     status_frames: int = 0
     speed_frames: int = 0
     events: Counter[int] = field(default_factory=Counter)
+
+    def copy(self) -> Stats:
+        """An independent copy (what copy.deepcopy gives, ~15x faster: a live snapshot takes
+        one under the runner's lock, four times a second)."""
+        out = replace(
+            self,
+            frames_by_id=Counter(self.frames_by_id),
+            channels=[replace(c) for c in self.channels],
+            vote_failures=list(self.vote_failures),
+            events=Counter(self.events),
+        )
+        return out
 
     def count_frames(self, ids: np.ndarray) -> None:
         self.frames += len(ids)

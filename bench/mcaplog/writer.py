@@ -62,6 +62,7 @@ from mcap.records import (
 )
 
 from bench import __version__
+from bench.arrays import concat_records as _concat
 from bench.config import Config
 from bench.events import EVENT_DTYPE, EventKind, describe, make_events, severity
 from bench.mcaplog import schemas as S
@@ -740,20 +741,6 @@ def _outcome(step: StepOutput, base_id: int) -> np.ndarray:
     if len(step.outcome) == len(step.frames):
         return step.outcome
     return decode_batch(step.frames, base_id).outcome
-
-
-def _concat(arrays: list[np.ndarray]) -> np.ndarray:
-    """np.concatenate for many small arrays of one (structured) dtype; numpy's own promotes
-    the fields of every input, which costs ~50 us per structured array."""
-    parts = [a for a in arrays if len(a)]
-    if not parts:
-        return arrays[0][:0]
-    if len(parts) == 1:
-        return parts[0]
-    dtype = parts[0].dtype
-    if any(a.dtype != dtype for a in parts):
-        return np.concatenate(parts)
-    return np.frombuffer(bytearray(b"".join(a.tobytes() for a in parts)), dtype=dtype)
 
 
 def _merge_steps(

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.arrays import concat_records
 from bench.config import Config
 from bench.mcaplog.writer import (
     _MAX_GROUP,
@@ -42,7 +43,6 @@ from bench.mcaplog.writer import (
     DEFAULT_FLUSH_INTERVAL_S,
     DEFAULT_GROUP_INTERVAL_S,
     McapSink,
-    _concat,
 )
 from bench.pipeline import StepOutput
 from devices.base import SourceBatch
@@ -67,7 +67,7 @@ def pack_steps(items: Sequence[tuple[StepOutput, int]]) -> dict[str, Any]:
     steps = [s for s, _ in items]
     batches = [s.batch for s in steps]
     return {
-        "arrays": {name: _concat([getattr(s, name) for s in steps]) for name in _ARRAYS},
+        "arrays": {name: concat_records([getattr(s, name) for s in steps]) for name in _ARRAYS},
         "sizes": np.array([[len(getattr(s, n)) for n in _ARRAYS] for s in steps], np.int64),
         "seq0": [s.seq0 for s in steps],
         "wall": [w for _, w in items],
