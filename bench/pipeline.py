@@ -11,6 +11,7 @@ with acquisition and logging, and its fixed cost per step is the live latency.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,13 +20,14 @@ from bench.assembly import NO_SAMPLES, SAMPLE_DTYPE, Assembler, usable
 from bench.config import Config
 from bench.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
-from bench.fusion.reference import fuse
+from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
 from bench.records import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.results import RESULT_DTYPE
 from bench.stats import Stats
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, SCALAR_MAX, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
+from protocol.layout import STATUS_FAULT_MASK
 
 _NOTICE_KINDS = {
     "parse_error": EventKind.PARSE_ERROR,
@@ -36,6 +38,9 @@ _NOTICE_KINDS = {
 _VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
 _NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
 _NO_FRAMES = empty_frames()
+SCALAR_SAMPLES = 16
+"""Steps with up to this many samples are fused by the scalar twin (a live step has one or
+two); more by the vectorised path. Same float64 results either way (tests prove it)."""
 
 
 class _ByteRuns:
@@ -108,6 +113,8 @@ class Pipeline:
         self._angles = np.asarray(config.angles_rad, dtype=np.float64)
         self._scale = np.array([c.scale for c in config.channels], dtype=np.float64)
         self._offset = np.array([c.offset for c in config.channels], dtype=np.float64)
+        self._scale_list, self._offset_list = self._scale.tolist(), self._offset.tolist()
+        self._angles_tuple = tuple(self._angles.tolist())
         self._last_fail_mask = 0
         self.last_status: np.void | None = None
         self.last_speed: np.void | None = None
@@ -169,6 +176,8 @@ class Pipeline:
             return _NO_RESULTS, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
+        if len(samples) <= SCALAR_SAMPLES:
+            return self._compute_scalar(samples, speed)
         res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
         _FROM_SAMPLE.copy(res, samples)
         res["time_s"] = (samples["ticks"] - self.first_ticks) / 10000.0
@@ -210,11 +219,57 @@ class Pipeline:
             ]
         )
 
+    def _compute_scalar(
+        self, samples: np.ndarray, speed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Twin of :meth:`compute` for the sample or two of a live step: the same float64
+        operations in the same order on Python floats (arccos and tan by numpy's own ufuncs,
+        whose results may differ from libm's), each result row built as one tuple."""
+        ticks_l, t_l = samples["ticks"].tolist(), samples["t"].tolist()
+        n_l, seq_l = samples["n"].tolist(), samples["seq"].tolist()
+        code_l, status_l = samples["code"].tolist(), samples["status"].tolist()
+        present_l = samples["present"].tolist()
+        off, sc = self._offset_list, self._scale_list
+        nan = math.nan
+        acc_l, ok_l, use_l = [], [], []
+        for code, st, pr in zip(code_l, status_l, present_l, strict=True):
+            acc = [(float(code[k]) - off[k]) * sc[k] for k in (0, 1, 2)]
+            ok = [pr[k] and not st[k] & STATUS_FAULT_MASK for k in (0, 1, 2)]
+            acc_l.append(acc)
+            ok_l.append(ok)
+            use_l.append([acc[k] if ok[k] else nan for k in (0, 1, 2)])
+        slopes_l = pair_gradients_few(use_l, self._angles_tuple, self.config.g)
+        ref = [vote_and_weigh(sl, self.tolerance_permil) for sl in slopes_l]
+        self.estimator.buffer_speeds(speed)
+        est_rows, est_events = self.estimator.push_rows(
+            ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, ok_l
+        )
+        first = self.first_ticks if self.first_ticks is not None else 0
+        rows = [
+            (
+                n_l[k], seq_l[k], ticks_l[k], t_l[k], (ticks_l[k] - first) / 10000.0,
+                code_l[k], status_l[k], present_l[k], use_l[k], slopes_l[k], *ref[k],
+                *est_rows[k],
+            )
+            for k in range(len(n_l))
+        ]  # fmt: skip
+        res = np.array(rows, dtype=RESULT_DTYPE)
+        vote_rows = self._vote_event_rows(t_l, n_l, [r[0] for r in ref])
+        events = [np.array(vote_rows, dtype=EVENT_DTYPE) if vote_rows else NO_EVENTS]
+        events.append(np.array(est_events, dtype=EVENT_DTYPE) if est_events else NO_EVENTS)
+        return res, concat_events(events)
+
     def _vote_events_scalar(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
         """Twin of the vectorised _vote_events for the few samples of a live step."""
+        rows = self._vote_event_rows(t.tolist(), n.tolist(), votes.tolist())
+        return np.array(rows, dtype=EVENT_DTYPE) if rows else NO_EVENTS
+
+    def _vote_event_rows(
+        self, tl: list[float], nl: list[int], votes: list[list[bool]]
+    ) -> list[tuple]:
         prev = self._last_fail_mask
         masks, change = [], []
-        for i, (v1, v2, v3) in enumerate(votes.tolist()):
+        for i, (v1, v2, v3) in enumerate(votes):
             m = (not v1) + 2 * (not v2) + 4 * (not v3)
             if m != prev and m:
                 change.append(i)
@@ -222,13 +277,12 @@ class Pipeline:
             prev = m
         self._last_fail_mask = prev
         if not change:
-            return NO_EVENTS
-        tl, nl = t.tolist(), n.tolist()
+            return []
         rows = [(tl[i], _VOTE_FAIL, 0, nl[i], masks[i]) for i in change]
         invalid = [(tl[i], _INVALID, 0, nl[i], 0) for i in change if masks[i] == 7]
         if invalid:  # as concat_events orders two parts: stable by time, NaN last
             rows = sorted(rows + invalid, key=lambda r: (r[0] != r[0], r[0]))
-        return np.array(rows, dtype=EVENT_DTYPE)
+        return rows
 
     def _state_events(self, status: np.ndarray) -> np.ndarray:
         prev_state = -1 if self.last_status is None else int(self.last_status["state"])

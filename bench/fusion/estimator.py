@@ -112,13 +112,17 @@ class Estimator:
         acc: (N, 3) calibrated m/s^2 of every channel; usable: (N, 3) present and status OK;
         speeds: SPEED_REF records (SPEED_DTYPE) of this pipeline step, arrival order.
         """
-        self.a_ref.buffer(speeds)
+        self.buffer_speeds(speeds)
         n = len(samples)
         if n == 0:
             return np.zeros(0, dtype=ESTIMATE_DTYPE), np.zeros(0, dtype=EVENT_DTYPE)
         if n <= SCALAR_MAX:
             return self._push_scalar(samples, acc, usable)
         return self._push_vector(samples, acc, usable)
+
+    def buffer_speeds(self, speeds: np.ndarray) -> None:
+        """Keep this step's SPEED_REF records for the reference acceleration."""
+        self.a_ref.buffer(speeds)
 
     def _push_vector(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
@@ -162,12 +166,7 @@ class Estimator:
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Twin of :meth:`_push_vector`, one sample at a time in Python floats."""
-        rows = []
-        events: list[tuple] = []
-        geo, g = self.geo, self.g
-        a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
-        isolate, latch = self.isolator.step, self.latch.step
-        for ticks, t, seq, n, code, present, a, ok in zip(
+        rows, events = self.push_rows(
             samples["ticks"].tolist(),
             samples["t"].tolist(),
             samples["seq"].tolist(),
@@ -176,7 +175,30 @@ class Estimator:
             samples["present"].tolist(),
             acc.tolist(),
             usable.tolist(),
-            strict=True,
+        )
+        out = np.array(rows, dtype=ESTIMATE_DTYPE)
+        return out, np.array(events, dtype=EVENT_DTYPE) if events else _NO_EVENTS
+
+    def push_rows(
+        self,
+        ticks_l: list[int],
+        t_l: list[float],
+        seq_l: list[int],
+        n_l: list[int],
+        code_l: list[list[int]],
+        present_l: list[list[bool]],
+        acc_l: list[list[float]],
+        usable_l: list[list[bool]],
+    ) -> tuple[list[tuple], list[tuple]]:
+        """The scalar path on Python lists (the pipeline's own scalar step calls it, after
+        :meth:`buffer_speeds`): ESTIMATE_DTYPE rows as tuples, EVENT_DTYPE rows as tuples."""
+        rows = []
+        events: list[tuple] = []
+        geo, g = self.geo, self.g
+        a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
+        isolate, latch = self.isolator.step, self.latch.step
+        for ticks, t, seq, n, code, present, a, ok in zip(
+            ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True
         ):
             a_ref = a_ref_step(ticks, t, seq)
             stuck = stuck_step(ticks, code, present)
@@ -212,5 +234,4 @@ class Estimator:
                     EXCLUDED_OF_MASK[mask],
                 )
             )
-        out = np.array(rows, dtype=ESTIMATE_DTYPE)
-        return out, np.array(events, dtype=EVENT_DTYPE) if events else _NO_EVENTS
+        return rows, events
