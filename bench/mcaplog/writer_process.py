@@ -20,6 +20,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import logging
+import math
 import os
 import queue
 import signal
@@ -52,6 +53,9 @@ log = logging.getLogger("bench.mcaplog")
 START_TIMEOUT_S = 60.0
 """How long the writer process may take to start and open the file."""
 CLOSE_TIMEOUT_S = 120.0
+WRITER_GROUP_S = 0.25
+"""The writer process encodes what arrived in groups this far apart: its fixed cost per
+group (a dozen topics, each a few numpy calls) is then paid 4 times a second."""
 """How long closing may take (the writer drains what was sent and writes the summary)."""
 _ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
 _CHILD_SIGNALS = tuple(
@@ -198,31 +202,38 @@ def _writer_main(conn: Connection) -> None:
     sink = McapSink(path, config, metadata, attachments, threaded=False, **options)
     with contextlib.suppress(OSError):
         conn.send(("status", _writer_status(sink)))
-    while True:
-        opened = sink._chunk_opened
-        wait = 0.5 if opened is None else opened + sink.flush_interval_s - time.monotonic()
-        msg: Any = None
+    group_s = WRITER_GROUP_S
+    pending: list[Any] = []  # received items not yet encoded
+    since = 0.0  # when the bench process took the first of them
+    done = False
+    while not done:
+        deadline = since + group_s if pending else math.inf
+        if sink._chunk_opened is not None:
+            deadline = min(deadline, sink._chunk_opened + sink.flush_interval_s)
+        wait = 0.5 if deadline == math.inf else max(0.0, deadline - time.monotonic())
         try:
-            if conn.poll(max(0.0, wait)):
-                msg = conn.recv()
+            msg = conn.recv() if conn.poll(wait) else None
         except (EOFError, OSError):
-            break  # the bench process is gone: finish the file with what arrived
+            msg = ("close",)  # the bench process is gone: finish the file with what arrived
         if msg is not None and msg[0] == "close":
-            break
-        if msg is not None and msg[0] == "items":
-            _, packed, since, dropped = msg
-            sink.dropped = dropped
+            done = True
+        elif msg is not None and msg[0] == "items":
+            if not pending:
+                since = msg[2]
+            pending += _unpack_items(msg[1])
+            sink.dropped = msg[3]
+        if pending and (done or time.monotonic() >= since + group_s):
             try:
-                sink._handle_items(_unpack_items(packed), since)
+                sink._handle_items(pending, since)
             except Exception as exc:
                 sink._fail(exc)
+            pending = []
+            with contextlib.suppress(OSError):
+                conn.send(("status", _writer_status(sink)))
         if sink._chunk_opened is not None and (
             time.monotonic() - sink._chunk_opened >= sink.flush_interval_s
         ):
             sink._flush()
-        if msg is not None:
-            with contextlib.suppress(OSError):
-                conn.send(("status", _writer_status(sink)))
     sink._finish()
     with contextlib.suppress(OSError):
         conn.send(("closed", _writer_status(sink)))
