@@ -449,11 +449,27 @@ def measure_rate(confirm_s: float = 30.0, probe_s: float = 5.0, log: Any = print
     ]
 
 
+def _cpu_ticks() -> tuple[int, int] | None:
+    """(steal, total) jiffies of the whole machine (Linux), for the steal share of a run:
+    time a virtual machine's CPUs were ready but the host ran something else."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            v = [int(x) for x in f.readline().split()[1:]]
+        return v[7], sum(v)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def measure_latency(seconds: float = 30.0, tui: bool = False) -> list[Figure]:
+    before = _cpu_ticks()
     r = run_live(None, seconds, tui=tui)
+    after = _cpu_ticks()
+    steal = ""
+    if before is not None and after is not None and after[1] > before[1]:
+        steal = f"; host steal {100.0 * (after[0] - before[0]) / (after[1] - before[1]):.1f} %"
     label = "TUI attached headless" if tui else "no TUI"
     detail = (
-        f"{r.results} results over {seconds:.0f} s at 1 kHz x 3 ch, MCAP on; "
+        f"{r.results} results over {seconds:.0f} s at 1 kHz x 3 ch, MCAP on{steal}; "
         f"p50 {r.p50_ms:.2f} ms, max {r.max_ms:.1f} ms; lossless={r.lossless}, "
         f"drained {r.drain_s:.2f} s after the board stopped"
         + (f"; {r.tui_snapshots} TUI snapshots" if tui else "")
