@@ -61,6 +61,12 @@ async def settle(pilot: object, app: BenchApp, session: Session, frames_total: i
     runner = session.runner
     assert runner is not None
     await wait_for(pilot, lambda: runner.pipeline.seq >= frames_total)
+
+    def delivered() -> bool:  # the pipeline counts a step's results before it delivers them
+        snap = runner.snapshot()
+        return snap.stats.samples == len(snap.results)
+
+    await wait_for(pilot, delivered)
     seen = app.snapshots_received
     await wait_for(pilot, lambda: app.snapshots_received >= seen + 2)
 

@@ -40,7 +40,7 @@ from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -841,7 +841,93 @@ def _run_metadata(extra: Mapping[str, str] | None) -> dict[str, str]:
 _STOP = object()
 
 
-class McapSink:
+class QueuedSink:
+    """The caller's side of a live MCAP sink: a bounded queue that never blocks the
+    processing thread (a full queue drops the step and counts its frames in ``dropped``),
+    and the figures for a status line. Subclasses start the thread that empties the queue
+    (``_thread``) and set ``path``; :meth:`_stop_thread` ends it after what is queued."""
+
+    path: Path
+    frames_logged: int
+    bytes_written: int
+    frames_lost: int
+    error: str | None
+
+    def __init__(self, queue_size: int) -> None:
+        self.dropped = 0
+        self.dropped_steps = 0
+        self._closed = False
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        self._thread: threading.Thread | None = None
+
+    def write(self, step: StepOutput) -> None:
+        if self._closed:  # a write after close() is a caller bug; count it, do not hang
+            self.dropped += len(step.frames)
+            return
+        try:
+            self._queue.put_nowait((step, time.time_ns()))
+        except queue.Full:
+            self.dropped += len(step.frames)
+            self.dropped_steps += 1
+            if self.dropped_steps == 1:
+                log.warning("MCAP log %s: writer queue full, dropping frames (counted)", self.path)
+
+    def mark(self, t: float, text: str) -> None:
+        if self._closed:
+            return
+        try:
+            self._queue.put_nowait(("mark", float(t), str(text), time.time_ns()))
+        except queue.Full:
+            self.dropped_steps += 1
+            log.warning("MCAP log %s: queue full, operator mark %r not logged", self.path, text)
+
+    def _stop_thread(self) -> bool:
+        """Mark closed, queue the stop after everything queued and wait for the thread;
+        False when already closed (close() is idempotent)."""
+        if self._closed:
+            return False
+        self._closed = True
+        with contextlib.suppress(Exception):
+            atexit.unregister(self.close)
+        thread = self._thread
+        while thread is not None and thread.is_alive():
+            try:
+                self._queue.put(_STOP, timeout=0.2)
+                break
+            except queue.Full:
+                continue
+        if thread is not None and thread.ident is not None:  # never started when not threaded
+            thread.join()
+        return True
+
+    def close(self) -> None:
+        self._stop_thread()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def queue_depth(self) -> int:
+        return self._queue.qsize()
+
+    def status(self) -> dict[str, Any]:
+        """The recording's figures for a status line or the TUI."""
+        return {
+            "path": str(self.path),
+            "frames": self.frames_logged,
+            "bytes": self.bytes_written,
+            "dropped": self.dropped,
+            "lost": self.frames_lost,
+            "queue": self.queue_depth,
+            "error": self.error,
+            "closed": self._closed,
+        }
+
+
+class McapSink(QueuedSink):
     """The MCAP sink of a live run (implements bench.sinks.Sink).
 
     ``write`` only enqueues (bounded queue; a full queue drops the step and counts its
@@ -871,6 +957,7 @@ class McapSink:
         group_interval_s: float = DEFAULT_GROUP_INTERVAL_S,
         threaded: bool = True,
     ) -> None:
+        super().__init__(queue_size)
         self.path = Path(path)
         self.config = config
         self.flush_interval_s = flush_interval_s
@@ -878,15 +965,11 @@ class McapSink:
         self.health_interval_s = health_interval_s
         self.error: str | None = None
         self.errors = 0
-        self.dropped = 0
-        self.dropped_steps = 0
         self.frames_lost = 0
         self.frames_logged = 0
         self.bytes_written = 0
         self._frames_pending = 0
         self._dropped_reported = 0
-        self._closed = False
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
         self._stats = Stats()
         self._next_health: float | None = None
         self._last_t = math.nan
@@ -908,73 +991,16 @@ class McapSink:
             self.bytes_written = self._file.position
         except OSError as exc:
             self._fail(exc)
-        self._thread = threading.Thread(
-            target=self._run, name=f"mcap-writer:{self.path.name}", daemon=True
-        )
         if threaded:  # else the owner drives _handle_items/_flush/_finish (writer_process)
+            self._thread = threading.Thread(
+                target=self._run, name=f"mcap-writer:{self.path.name}", daemon=True
+            )
             self._thread.start()
             atexit.register(self.close)
 
-    # -- caller side (acquisition thread) --------------------------------------------------
-    def write(self, step: StepOutput) -> None:
-        if self._closed:  # a write after close() is a caller bug; count it, do not hang
-            self.dropped += len(step.frames)
-            return
-        try:
-            self._queue.put_nowait((step, time.time_ns()))
-        except queue.Full:
-            self.dropped += len(step.frames)
-            self.dropped_steps += 1
-            if self.dropped_steps == 1:
-                log.warning("MCAP log %s: writer queue full, dropping frames (counted)", self.path)
-
-    def mark(self, t: float, text: str) -> None:
-        if self._closed:
-            return
-        try:
-            self._queue.put_nowait(("mark", float(t), str(text), time.time_ns()))
-        except queue.Full:
-            self.dropped_steps += 1
-            log.warning("MCAP log %s: queue full, operator mark %r not logged", self.path, text)
-
     def close(self) -> None:
         """Drain the queue, write the summary and close the file (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        with contextlib.suppress(Exception):
-            atexit.unregister(self.close)
-        while self._thread.is_alive():
-            try:
-                self._queue.put(_STOP, timeout=0.2)
-                break
-            except queue.Full:
-                continue
-        if self._thread.ident is not None:  # never started when not threaded
-            self._thread.join()
-
-    def __enter__(self) -> McapSink:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def queue_depth(self) -> int:
-        return self._queue.qsize()
-
-    def status(self) -> dict[str, Any]:
-        """The recording's figures for a status line or the TUI."""
-        return {
-            "path": str(self.path),
-            "frames": self.frames_logged,
-            "bytes": self.bytes_written,
-            "dropped": self.dropped,
-            "lost": self.frames_lost,
-            "queue": self.queue_depth,
-            "error": self.error,
-            "closed": self._closed,
-        }
+        self._stop_thread()
 
     # -- writer thread ---------------------------------------------------------------------
     def _fail(self, exc: BaseException) -> None:

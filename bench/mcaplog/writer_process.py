@@ -44,6 +44,7 @@ from bench.mcaplog.writer import (
     DEFAULT_FLUSH_INTERVAL_S,
     DEFAULT_GROUP_INTERVAL_S,
     McapSink,
+    QueuedSink,
 )
 from bench.pipeline import StepOutput
 from devices.base import SourceBatch
@@ -240,7 +241,7 @@ def _writer_main(conn: Connection) -> None:
 
 
 # -- the bench process's side ----------------------------------------------------------------
-class McapProcessSink:
+class McapProcessSink(QueuedSink):
     """McapSink's interface (a Sink: ``write``, ``mark``, ``close``, ``status``) with the
     encoding in a writer process. ``write`` only enqueues (bounded; a full queue drops the
     step and counts its frames in ``dropped``); a sender thread ships groups to the writer
@@ -258,20 +259,17 @@ class McapProcessSink:
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         **options: Any,
     ) -> None:
+        super().__init__(queue_size)
         self.path = Path(path)
         self.config = config
         self.group_interval_s = group_interval_s
         self.flush_interval_s = flush_interval_s
         self.error: str | None = None
         self.errors = 0
-        self.dropped = 0
-        self.dropped_steps = 0
         self.frames_lost = 0
         self.frames_logged = 0
         self.bytes_written = 0
         self.frames_sent = 0  # frames handed to the writer process
-        self._closed = False
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
         options = dict(options, flush_interval_s=flush_interval_s)
         self._conn, self._proc = _start_writer()
         self._gone = False
@@ -281,73 +279,19 @@ class McapProcessSink:
             )
         self._gone = False
         self._await_first()
-        self._thread = threading.Thread(
+        thread = self._thread = threading.Thread(
             target=self._run, name=f"mcap-sender:{self.path.name}", daemon=True
         )
-        self._thread.start()
+        thread.start()
         atexit.register(self.close)
-
-    # -- caller side -----------------------------------------------------------------------
-    def write(self, step: StepOutput) -> None:
-        if self._closed:
-            self.dropped += len(step.frames)
-            return
-        try:
-            self._queue.put_nowait((step, time.time_ns()))
-        except queue.Full:
-            self.dropped += len(step.frames)
-            self.dropped_steps += 1
-            if self.dropped_steps == 1:
-                log.warning("MCAP log %s: writer queue full, dropping frames (counted)", self.path)
-
-    def mark(self, t: float, text: str) -> None:
-        if self._closed:
-            return
-        try:
-            self._queue.put_nowait(("mark", float(t), str(text), time.time_ns()))
-        except queue.Full:
-            self.dropped_steps += 1
-            log.warning("MCAP log %s: queue full, operator mark %r not logged", self.path, text)
 
     def close(self) -> None:
         """Send what is queued, let the writer process finish the file, reap it."""
-        if self._closed:
+        if not self._stop_thread():
             return
-        self._closed = True
-        with contextlib.suppress(Exception):
-            atexit.unregister(self.close)
-        while self._thread.is_alive():
-            try:
-                self._queue.put(_STOP, timeout=0.2)
-                break
-            except queue.Full:
-                continue
-        self._thread.join()
         with contextlib.suppress(OSError):
             self._conn.close()
         _end_writer(self._proc, 10.0)
-
-    def __enter__(self) -> McapProcessSink:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    @property
-    def queue_depth(self) -> int:
-        return self._queue.qsize()
-
-    def status(self) -> dict[str, Any]:
-        return {
-            "path": str(self.path),
-            "frames": self.frames_logged,
-            "bytes": self.bytes_written,
-            "dropped": self.dropped,
-            "lost": self.frames_lost,
-            "queue": self.queue_depth,
-            "error": self.error,
-            "closed": self._closed,
-        }
 
     # -- sender thread ---------------------------------------------------------------------
     def _await_first(self) -> None:
