@@ -182,3 +182,12 @@ def test_log_writer_setting(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("BENCH_LOG_WRITER", "fast")
     with pytest.raises(BenchError, match="BENCH_LOG_WRITER must be"):
         recording_sink_class()
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling classes")
+def test_the_writer_runs_at_idle_priority(tmp_path: Path) -> None:
+    sink = McapProcessSink(tmp_path / "prio.mcap", Config())
+    try:
+        assert os.sched_getscheduler(sink._proc.pid) == os.SCHED_IDLE
+    finally:
+        sink.close()

@@ -1,18 +1,19 @@
 """The live MCAP sink with its encoder in a process of its own.
 
 Why: encoding a live run (a JSON object per result, chunk building) is pure Python. In the
-bench process it runs in bursts of a few milliseconds every group interval, and while it
-holds the GIL the acquisition and processing threads wait -- measured, it sets the live
-frame-to-result latency p99 (about 6 ms with it, 2 ms without, on a 2-core box). Here the
-bench process only queues each step (as before) and a sender thread ships each group of
-queued steps, merged into one set of arrays (~0.5 ms per 50 ms group), to a writer process
-that runs the very same :class:`~bench.mcaplog.writer.McapSink` code without its thread.
+bench process it runs in bursts of a few milliseconds, and while it holds the GIL the
+acquisition and processing threads wait. Here the bench process only queues each step (as
+before) and a sender thread ships each group of queued steps, merged into one set of arrays
+(~0.5 ms per 50 ms group), to a writer process at idle CPU priority that runs the very same
+:class:`~bench.mcaplog.writer.McapSink` code without its thread. (Measured on 2 cores: the
+encoder's CPU still shows in the live latency p99 wherever it runs -- see
+docs/BENCHMARKS.md -- but no longer as GIL stalls of the bench process.)
 
 The front (:class:`McapProcessSink`) has McapSink's interface and counters; the writer's
 figures (frames logged, bytes, error) come back after every group. Crash safety gets
-better, not worse: the writer process ignores Ctrl-C and SIGTERM (the bench process
-decides when the run ends) and finishes the file when its pipe closes, so a bench process
-killed with -9 still leaves a finished MCAP file.
+better, not worse: the writer process ignores Ctrl-C, SIGTERM and SIGHUP in a session of its
+own (the bench process decides when the run ends) and finishes the file when its socket
+closes, so a bench process killed with -9 still leaves a finished MCAP file.
 """
 
 from __future__ import annotations
@@ -54,10 +55,10 @@ log = logging.getLogger("bench.mcaplog")
 START_TIMEOUT_S = 60.0
 """How long the writer process may take to start and open the file."""
 CLOSE_TIMEOUT_S = 120.0
+"""How long closing may take (the writer drains what was sent and writes the summary)."""
 WRITER_GROUP_S = 0.25
 """The writer process encodes what arrived in groups this far apart: its fixed cost per
 group (a dozen topics, each a few numpy calls) is then paid 4 times a second."""
-"""How long closing may take (the writer drains what was sent and writes the summary)."""
 _ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
 _CHILD_SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
@@ -141,18 +142,14 @@ def _writer_status(sink: McapSink) -> dict[str, Any]:
 def _yield_cpu() -> None:
     """Let the bench process's threads have the cores first. The writer needs ~10 % of a
     core, in bursts; at normal priority a burst occupies a core that acquisition and
-    processing hand work across, and the live latency p99 doubles (measured: a separate
-    process busy 4 ms out of every 50 ms takes p99 from ~2 ms to ~4.5 ms on 2 cores).
+    processing hand work across (measured: a separate process busy 4 ms out of every 50 ms
+    takes the live p99 from ~2 ms to ~4.5 ms on 2 cores, ~2.7 ms at idle priority).
     SCHED_IDLE (Linux) is preempted by any normal thread that wakes; elsewhere nice 10."""
-    import os
-
-    mode = os.environ.get("BENCH_WRITER_PRIORITY", "idle")
-    with contextlib.suppress(OSError, AttributeError, ValueError):
-        if mode == "idle":
-            os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
-            return
-        if mode != "normal":
-            os.nice(int(mode) if mode.lstrip("-").isdigit() else 10)
+    try:
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # type: ignore[attr-defined]
+    except (AttributeError, OSError):
+        with contextlib.suppress(AttributeError, OSError):
+            os.nice(10)
 
 
 def _start_writer() -> tuple[Connection, subprocess.Popen[bytes]]:
@@ -277,7 +274,6 @@ class McapProcessSink(QueuedSink):
             self._conn.send(
                 (str(self.path), config, dict(metadata or {}), list(attachments), options)
             )
-        self._gone = False
         self._await_first()
         thread = self._thread = threading.Thread(
             target=self._run, name=f"mcap-sender:{self.path.name}", daemon=True
