@@ -845,15 +845,25 @@ class QueuedSink:
     """The caller's side of a live MCAP sink: a bounded queue that never blocks the
     processing thread (a full queue drops the step and counts its frames in ``dropped``),
     and the figures for a status line. Subclasses start the thread that empties the queue
-    (``_thread``) and set ``path``; :meth:`_stop_thread` ends it after what is queued."""
+    (``_thread``); :meth:`_stop_thread` ends it after what is queued."""
 
-    path: Path
-    frames_logged: int
-    bytes_written: int
-    frames_lost: int
-    error: str | None
-
-    def __init__(self, queue_size: int) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        config: Config,
+        queue_size: int,
+        flush_interval_s: float,
+        group_interval_s: float,
+    ) -> None:
+        self.path = Path(path)
+        self.config = config
+        self.flush_interval_s = flush_interval_s
+        self.group_interval_s = group_interval_s
+        self.error: str | None = None
+        self.errors = 0
+        self.frames_lost = 0
+        self.frames_logged = 0
+        self.bytes_written = 0
         self.dropped = 0
         self.dropped_steps = 0
         self._closed = False
@@ -957,17 +967,8 @@ class McapSink(QueuedSink):
         group_interval_s: float = DEFAULT_GROUP_INTERVAL_S,
         threaded: bool = True,
     ) -> None:
-        super().__init__(queue_size)
-        self.path = Path(path)
-        self.config = config
-        self.flush_interval_s = flush_interval_s
-        self.group_interval_s = group_interval_s
+        super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
         self.health_interval_s = health_interval_s
-        self.error: str | None = None
-        self.errors = 0
-        self.frames_lost = 0
-        self.frames_logged = 0
-        self.bytes_written = 0
         self._frames_pending = 0
         self._dropped_reported = 0
         self._stats = Stats()

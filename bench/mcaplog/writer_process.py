@@ -256,16 +256,7 @@ class McapProcessSink(QueuedSink):
         flush_interval_s: float = DEFAULT_FLUSH_INTERVAL_S,
         **options: Any,
     ) -> None:
-        super().__init__(queue_size)
-        self.path = Path(path)
-        self.config = config
-        self.group_interval_s = group_interval_s
-        self.flush_interval_s = flush_interval_s
-        self.error: str | None = None
-        self.errors = 0
-        self.frames_lost = 0
-        self.frames_logged = 0
-        self.bytes_written = 0
+        super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
         self.frames_sent = 0  # frames handed to the writer process
         options = dict(options, flush_interval_s=flush_interval_s)
         self._conn, self._proc = _start_writer()
