@@ -25,7 +25,7 @@ from bench.records import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_recor
 from bench.results import RESULT_DTYPE
 from bench.stats import Stats
 from devices.base import SourceBatch
-from protocol.batch import EMPTY_DECODED, SCALAR_MAX, DecodedBatch, decode_batch
+from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
 from protocol.layout import STATUS_FAULT_MASK
 
@@ -199,8 +199,6 @@ class Pipeline:
     def _vote_events(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
         """A VOTE_FAIL event whenever the set of failed votes changes to a non-empty one
         (value: failed votes as bits 1, 2, 4), and INVALID when it becomes all three."""
-        if len(votes) <= SCALAR_MAX:
-            return self._vote_events_scalar(t, n, votes)
         v = votes.view(np.uint8)
         mask = 7 - (v[:, 0] | v[:, 1] << 1 | v[:, 2] << 2).astype(np.int64)
         prev = np.empty_like(mask)
@@ -259,14 +257,10 @@ class Pipeline:
         events.append(np.array(est_events, dtype=EVENT_DTYPE) if est_events else NO_EVENTS)
         return res, concat_events(events)
 
-    def _vote_events_scalar(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
-        """Twin of the vectorised _vote_events for the few samples of a live step."""
-        rows = self._vote_event_rows(t.tolist(), n.tolist(), votes.tolist())
-        return np.array(rows, dtype=EVENT_DTYPE) if rows else NO_EVENTS
-
     def _vote_event_rows(
         self, tl: list[float], nl: list[int], votes: list[list[bool]]
     ) -> list[tuple]:
+        """Twin of :meth:`_vote_events` for the few samples of a live step (EVENT_DTYPE rows)."""
         prev = self._last_fail_mask
         masks, change = [], []
         for i, (v1, v2, v3) in enumerate(votes):
