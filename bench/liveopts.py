@@ -35,6 +35,13 @@ class LiveSetup:
     scenario_path: Path | None = None
     cleanup: list[Callable[[], None]] = field(default_factory=list)
 
+    def start_board(self) -> None:
+        """Start the in-process virtual board, if any: called once the runner listens, so
+        that no frame waits in the bus while the run and its log are being set up."""
+        begin = getattr(self.emulator, "begin", None)
+        if callable(begin):
+            begin()
+
     def close(self) -> None:
         if self.emulator is not None:
             self.emulator.stop()
@@ -71,7 +78,8 @@ def _slug(text: str) -> str:
 
 
 def open_emulator(scenario_path: str | Path, speed: float = 1.0) -> LiveSetup:
-    """The virtual board on a private python-can virtual channel, and a source listening to it."""
+    """The virtual board on a private python-can virtual channel, and a source listening to it.
+    The board plays once :meth:`LiveSetup.start_board` is called (after the runner starts)."""
     import can
 
     from devices.bus import CanBusSource
@@ -83,7 +91,7 @@ def open_emulator(scenario_path: str | Path, speed: float = 1.0) -> LiveSetup:
     channel = f"acb3-emu-{os.getpid()}-{next(_emu_ids)}"
     bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
     source = CanBusSource(bus=bus, owns_bus=True, description=f"virtual board {path.name}")
-    handle = start_virtual_board(scenario, channel, speed=speed)
+    handle = start_virtual_board(scenario, channel, speed=speed, start=False)  # start_board()
     return LiveSetup(source, f"virtual board {path.name}", f"emu-{_slug(path.stem)}", handle, path)
 
 

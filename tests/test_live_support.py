@@ -100,3 +100,27 @@ def test_plot_pacer_keeps_drawing_under_its_cpu_share() -> None:
     pacer.force()  # a new window or size: drawn at once
     assert pacer.due()
     assert pacer.drawn == 3 and pacer.skipped == 3
+
+
+def test_the_emulated_board_waits_for_the_bench(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """open_emulator's board plays only once start_board() is called (after the runner
+    starts), so no frame queues up in the bus while the run and its log are set up."""
+    import time
+
+    from bench.liveopts import open_emulator
+
+    sc = tmp_path / "short.toml"
+    sc.write_text("duration_s = 5.0\nsample_rate_hz = 200\nseed = 3\n", encoding="utf-8")
+    setup = open_emulator(sc)
+    try:
+        time.sleep(0.3)
+        assert setup.emulator.frames_sent == 0 and not setup.source.read(0.05)
+        setup.start_board()
+        setup.start_board()  # idempotent
+        deadline = time.monotonic() + 5.0
+        while setup.emulator.frames_sent < 30 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert setup.emulator.frames_sent >= 30
+        assert len(setup.source.read(1.0).frames) > 0
+    finally:
+        setup.close()

@@ -510,6 +510,7 @@ def _run_live(
     unattended = opts.yes or opts.answers is not None
     prev_end = 0.0
     runner.start()
+    setup.start_board()
     try:
         collector.updated = time.monotonic()
         for s in plan.steps:

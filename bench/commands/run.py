@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     tty = sys.stderr.isatty()
     last_print = 0.0
     runner.start()
+    setup.start_board()
     try:
         while not stop.is_set():
             time.sleep(0.1)

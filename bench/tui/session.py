@@ -202,6 +202,8 @@ class Session:
         if self.runner is not None and not self._started:
             self._started = True
             self.runner.start()
+            if self.setup is not None:
+                self.setup.start_board()
 
     def snapshot(self, last: int = HISTORY) -> Snapshot:
         if self.fixed is not None or self.runner is None:

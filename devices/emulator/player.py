@@ -89,6 +89,12 @@ class _PacedPlayer(threading.Thread):
     def items_total(self) -> int:
         return len(self._times)
 
+    def begin(self) -> None:
+        """Start playing unless already started (a player may be built before its listener
+        is ready and started once it is)."""
+        if self.ident is None and not self._halt.is_set():
+            self.start()
+
     def wait(self, timeout: float | None = None) -> bool:
         """Block until done (or timeout); True when done."""
         self.join(timeout)
@@ -238,17 +244,23 @@ def _as_simulation(scenario: Scenario | Simulation | str | Path) -> Simulation:
 
 
 def start_virtual_board(
-    scenario: Scenario | Simulation | str | Path, channel_name: str, *, speed: float = 1.0
+    scenario: Scenario | Simulation | str | Path,
+    channel_name: str,
+    *,
+    speed: float = 1.0,
+    start: bool = True,
 ) -> CanPlayer:
     """Start the virtual board on python-can's in-process ``virtual`` interface.
 
     The receiver opens its own ``can.Bus(interface="virtual", channel=channel_name)`` --
-    before calling this, or it misses the first frames. Returns the running player: it has
-    ``frames_sent``, ``errors``, ``done``, ``progress_s``, ``simulation`` and ``stop()``.
+    before calling this, or it misses the first frames. Returns the running player (with
+    ``start=False`` a ready one: ``begin()`` starts it): it has ``frames_sent``, ``errors``,
+    ``done``, ``progress_s``, ``simulation`` and ``stop()``.
     """
     sim = _as_simulation(scenario)
     player = CanPlayer(sim, _open_virtual(channel_name), speed=speed, own_bus=True)
-    player.start()
+    if start:
+        player.start()
     return player
 
 
