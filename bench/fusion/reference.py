@@ -136,13 +136,22 @@ def fuse(
 _WEIGHT_ROWS = _WEIGHTS.T.tolist()  # [pattern] -> [w12, w23, w13]
 
 
+@lru_cache(maxsize=16)
+def _pair_constant_lists(
+    angles_rad: tuple[float, ...], g: float
+) -> tuple[list[float], list[float], list[float]]:
+    """:func:`_pair_constants` as Python floats, converted once, not per live step."""
+    cos_i, cos_j, denom = (c.ravel().tolist() for c in _pair_constants(angles_rad, g))
+    return cos_i, cos_j, denom
+
+
 def pair_gradients_few(
     acc: list[list[float]], angles_rad: tuple[float, ...], g: float
 ) -> list[list[float]]:
     """:func:`_slopes` for a few samples given as Python rows (NaN = unusable): the same
     products, difference, quotient and clamp in Python floats, then numpy's own arccos and
     tan over all of them at once (libm's may differ from numpy's in the last bit)."""
-    cos_i, cos_j, denom = (c.ravel().tolist() for c in _pair_constants(angles_rad, g))
+    cos_i, cos_j, denom = _pair_constant_lists(angles_rad, g)
     xs = []
     for a in acc:
         for p, (i, j) in enumerate(PAIRS):
