@@ -910,6 +910,15 @@ class QueuedSink:
             thread.join()
         return True
 
+    def _drain(self, items: list[Any]) -> list[Any]:
+        """``items`` plus whatever else is queued (up to a group's worth; not past a stop)."""
+        while items[-1] is not _STOP and len(items) < _MAX_GROUP:
+            try:
+                items.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return items
+
     def close(self) -> None:
         self._stop_thread()
 
@@ -1068,12 +1077,7 @@ class McapSink(QueuedSink):
             wait = (until if deadline is None else min(until, deadline)) - time.monotonic()
             if wait > 0:
                 time.sleep(wait)
-        while items[-1] is not _STOP and len(items) < _MAX_GROUP:
-            try:
-                items.append(self._queue.get_nowait())
-            except queue.Empty:
-                break
-        return items, since
+        return self._drain(items), since
 
     def _handle_items(self, items: list[Any], since: float) -> None:
         """Marks in order; each run of consecutive steps merged (see _handle_run).

@@ -339,12 +339,7 @@ class McapProcessSink(QueuedSink):
             return []
         if items[0] is not _STOP and self._queue.qsize() < _MAX_GROUP:
             time.sleep(self.group_interval_s)
-        while items[-1] is not _STOP and len(items) < _MAX_GROUP:
-            try:
-                items.append(self._queue.get_nowait())
-            except queue.Empty:
-                break
-        return items
+        return self._drain(items)
 
     def _run(self) -> None:
         while True:
