@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bench.fusion.reference import fuse, pair_gradients, vote, weights
+from bench.fusion.reference import fuse, pair_gradients, pair_gradients_few, vote, weights
 
 NOMINAL = np.radians([30.0, 0.0, -30.0])
 G = 9.80665
@@ -82,6 +82,23 @@ def test_missing_channel_empties_its_two_pairs_and_fails_their_votes():
     assert not np.isnan(r.slopes[0, 0]) and np.isnan(r.slopes[0, 1]) and np.isnan(r.slopes[0, 2])
     assert r.votes[0].tolist() == [False, False, False]
     assert not r.valid[0] and np.isnan(r.gradient[0])
+
+
+QUIET_NAN = bytes.fromhex("000000000000f87f")  # IEEE 754 float64 0x7ff8000000000000, LE
+
+
+@pytest.mark.parametrize("bad", [np.nan, -np.nan])
+def test_uncomputable_slopes_are_the_one_quiet_nan_in_both_paths(bad):
+    """A log writes NaN as JSON null and reads back 0x7ff8...: the sign-bit NaN that SIMD
+    arccos can return would make the recorded results differ from the live ones."""
+    acc = np.repeat(_accels(math.atan(0.005), 0.0), 40, axis=0)  # a vector-sized batch
+    acc[:, 1] = bad
+    vector = fuse(acc, NOMINAL, G, 1.0).slopes
+    scalar = np.array(pair_gradients_few(acc[:2].tolist(), tuple(NOMINAL.tolist()), G))
+    for slopes in (vector, scalar):
+        assert np.isnan(slopes[:, :2]).all()  # the pairs with ch2: g12, g23
+        assert {v.tobytes() for v in slopes[:, :2].ravel()} == {QUIET_NAN}
+        assert np.isfinite(slopes[:, 2]).all()  # g13 does not use ch2
 
 
 def test_one_bad_sensor_corrupts_two_slopes_and_all_votes_fail():

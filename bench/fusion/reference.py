@@ -80,7 +80,11 @@ def _slopes(acc: np.ndarray, angles_rad: np.ndarray, g: float) -> np.ndarray:
     x.clip(-1.0, 1.0, out=x)  # np.clip's ufunc, without its wrappers
     np.arccos(x, out=x)
     np.tan(x, out=x)
-    return np.multiply(1000.0, x, out=x)
+    np.multiply(1000.0, x, out=x)
+    # an uncomputable value is the one quiet NaN: SIMD arccos may hand back the sign-bit NaN,
+    # which a log's JSON null could not give back bit for bit
+    np.copyto(x, np.nan, where=np.isnan(x))
+    return x
 
 
 def _votes(slopes: np.ndarray, tolerance_permil: float) -> np.ndarray:
@@ -159,7 +163,7 @@ def pair_gradients_few(
             xs.append(x if x != x else (-1.0 if x < -1.0 else (1.0 if x > 1.0 else x)))
     out = np.arccos(np.array(xs, dtype=np.float64))
     np.tan(out, out=out)
-    flat = np.multiply(1000.0, out, out=out).tolist()
+    flat = [v if v == v else math.nan for v in np.multiply(1000.0, out, out=out).tolist()]
     return [flat[k : k + 3] for k in range(0, len(flat), 3)]
 
 
