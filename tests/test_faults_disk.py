@@ -211,7 +211,8 @@ def test_tui_survives_disk_full_and_shows_it(
             await _until(lambda: runner.frames_received > seen + 600, 10, "acquisition after it")
             await _until(lambda: app.snapshots_applied > shown + 3, 10, "the screen updating")
             await pilot.pause()
-            assert "Nospaceleft" in _panel_text(app, "#recording")  # long lines are cropped
+            # the reason first, above the long path, whatever the panel's size crops
+            assert "LOGFAILED:Nospaceleftondevice" in _panel_text(app, "#recording")
             header = _panel_text(app, "#status-bar")
             assert "LOGFAILED" in header and "REC" not in header.replace("LOGFAILED", "")
             assert runner.error is None

@@ -49,7 +49,12 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
     head = Text("● REC", style="bold red")
     head.append("  " + duration_text(_first(status, _DURATION_KEYS)), style="bold")
     table.add_row(head)
-    table.add_row(str(status.get("path", MISSING)))
+    path = str(status.get("path", MISSING))
+    err = status.get("error") or status.get("errors")
+    if err:  # before the long path, where a short panel cannot crop it away
+        reason = str(err).removeprefix(f"{path}: ")
+        table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
+    table.add_row(path)
     table.add_row(_figures(status, duration=False))
     line = Text()
     for key in ("dropped", "lost"):
@@ -57,9 +62,6 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
             line.append(f"{key} {status[key]}  ", style="bold red")
     if "queue" in status:
         line.append(f"queue {status['queue']}", style="dim")
-    err = status.get("error") or status.get("errors")
-    if err:
-        line.append(f"\n{err}", style="bold red")
     if line:
         table.add_row(line)
     extra = [f"{k} {v}" for k, v in status.items() if k not in _SHOWN and _is_scalar(v)]
