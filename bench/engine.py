@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
+from bench.cpu_placement import other_cpus, pin_thread, restore_thread
 from bench.engine_child import SIGNALS, EngineReport, child_main
 from bench.engine_plans import EnginePlan
 from bench.live import HISTORY, ResultRing, Snapshot
@@ -237,6 +238,9 @@ class EngineSession:
         self._stop_lock = threading.Lock()
         self.stopping = False
         self._stopped = False
+        # the screen's thread (and the reader thread it starts) stay off the engine's live
+        # CPU until stop(): a screen drawing there delays acquisition (cpu_placement)
+        self._placement = pin_thread(other_cpus())
         self._channel = _Channel(conn, self._on_gone, self._finish)
 
     # -- requests --------------------------------------------------------------------------
@@ -330,6 +334,7 @@ class EngineSession:
             finally:
                 self.recorder.update(False, False)
                 self._reap()
+                restore_thread(self._placement)
                 self._stopped = True
 
     def _finish(self, report: EngineReport) -> None:

@@ -20,6 +20,7 @@ import numpy as np
 
 from bench.arrays import concat_records
 from bench.config import Config
+from bench.cpu_placement import live_cpus, pin_thread
 from bench.events import EventKind, describe, make_events
 from bench.pipeline import Pipeline, StepOutput
 from bench.results import RESULT_DTYPE
@@ -153,6 +154,7 @@ class LiveRunner:
         self.error: str | None = None
         self.finished = threading.Event()
         self.recording: Any = None  # the MCAP sink, when recording
+        self.cpus = live_cpus()  # both threads on one CPU: they share a GIL (cpu_placement)
         self._acq = threading.Thread(target=self._acquire, name="acquisition", daemon=True)
         self._proc = threading.Thread(target=self._process, name="processing", daemon=True)
 
@@ -197,6 +199,7 @@ class LiveRunner:
 
     # -- threads ---------------------------------------------------------------------------
     def _acquire(self) -> None:
+        pin_thread(self.cpus)
         try:
             while not self._stop.is_set():
                 batch = self.source.read(self._read_timeout)
@@ -213,6 +216,7 @@ class LiveRunner:
             self._queue.put(None)
 
     def _process(self) -> None:
+        pin_thread(self.cpus)
         dropped_seen = 0
         try:
             end = False

@@ -19,6 +19,7 @@ from typing import Any
 
 from bench import __version__
 from bench.config import Config
+from bench.cpu_placement import live_cpus
 from bench.errors import BenchError
 from devices.base import LiveSource
 
@@ -99,6 +100,7 @@ def open_live(args: argparse.Namespace) -> LiveSetup:
     """The live source the arguments name; BenchError when there is none or it cannot open."""
     from devices.cli_args import live_source_from_args
 
+    live_cpus()  # a bad BENCH_LIVE_CPU is said before anything opens
     if getattr(args, "emulate", None):
         if getattr(args, "interface", None) or getattr(args, "serial", None):
             raise BenchError("--emulate cannot be combined with --interface/--serial")
@@ -127,6 +129,7 @@ def run_metadata(
         "config_toml": config.to_toml(),
         "command": " ".join(sys.argv),
         "started_utc": datetime.now(UTC).isoformat(),
+        "live_cpu": ",".join(str(c) for c in sorted(live_cpus() or ())) or "any",
     }
     if setup.scenario_path is not None:
         meta["scenario"] = str(setup.scenario_path)

@@ -39,6 +39,7 @@ import numpy as np
 
 from bench.arrays import concat_records
 from bench.config import Config
+from bench.cpu_placement import other_cpus, pin_thread, yield_cpu
 from bench.mcaplog.writer import (
     _MAX_GROUP,
     _STOP,
@@ -139,19 +140,6 @@ def _writer_status(sink: McapSink) -> dict[str, Any]:
     }
 
 
-def _yield_cpu() -> None:
-    """Let the bench process's threads have the cores first. The writer needs ~10 % of a
-    core, in bursts; at normal priority a burst occupies a core that acquisition and
-    processing hand work across (measured: a separate process busy 4 ms out of every 50 ms
-    takes the live p99 from ~2 ms to ~4.5 ms on 2 cores, ~2.7 ms at idle priority).
-    SCHED_IDLE (Linux) is preempted by any normal thread that wakes; elsewhere nice 10."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # type: ignore[attr-defined]
-    except (AttributeError, OSError):
-        with contextlib.suppress(AttributeError, OSError):
-            os.nice(10)
-
-
 def _start_writer() -> tuple[Connection, subprocess.Popen[bytes]]:
     """Start the writer process: a fresh interpreter (not multiprocessing, whose daemonic
     engine process may not have children), in a session of its own so a terminal's Ctrl-C
@@ -192,7 +180,8 @@ def _writer_main(conn: Connection) -> None:
     the pipe ends; then writes the summary and footer."""
     for sig in _CHILD_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)  # the bench process ends the run, not a signal
-    _yield_cpu()
+    yield_cpu()  # the bench process's threads have the cores first
+    pin_thread(other_cpus())  # and the live path's CPU to themselves
     try:
         path, config, metadata, attachments, options = conn.recv()
     except (EOFError, OSError):

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.cpu_placement import live_cpus, pin_thread
 from bench.errors import BenchError
 from devices.emulator.scenario import Scenario, load_scenario
 from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
@@ -30,8 +31,11 @@ from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, s
 class _PacedPlayer(threading.Thread):
     """Emits items i..j whose relative times have come; subclasses define :meth:`_emit`."""
 
-    def __init__(self, times_s: np.ndarray, speed: float, name: str) -> None:
+    def __init__(
+        self, times_s: np.ndarray, speed: float, name: str, cpus: frozenset[int] | None = None
+    ) -> None:
         super().__init__(name=name, daemon=True)
+        self.cpus = cpus  # where the thread runs (None: wherever the scheduler puts it)
         if not speed > 0:
             raise BenchError(f"--speed must be > 0, got {speed!r}")
         self._times = np.ascontiguousarray(times_s, dtype=np.float64)
@@ -48,6 +52,7 @@ class _PacedPlayer(threading.Thread):
         pass
 
     def run(self) -> None:
+        pin_thread(self.cpus)
         times, n = self._times, len(self._times)
         self._started_at = time.perf_counter()
         try:
@@ -117,9 +122,15 @@ class CanPlayer(_PacedPlayer):
     """
 
     def __init__(
-        self, sim: Simulation, bus: object, *, speed: float = 1.0, own_bus: bool = True
+        self,
+        sim: Simulation,
+        bus: object,
+        *,
+        speed: float = 1.0,
+        own_bus: bool = True,
+        cpus: frozenset[int] | None = None,
     ) -> None:
-        super().__init__(sim.frames["t"] - sim.t0, speed, name="virtual-board-can")
+        super().__init__(sim.frames["t"] - sim.t0, speed, name="virtual-board-can", cpus=cpus)
         self.simulation = sim
         self.bus = bus
         self._own_bus = own_bus
@@ -258,7 +269,10 @@ def start_virtual_board(
     ``done``, ``progress_s``, ``simulation`` and ``stop()``.
     """
     sim = _as_simulation(scenario)
-    player = CanPlayer(sim, _open_virtual(channel_name), speed=speed, own_bus=True)
+    # python-can's virtual bus is in-process: this board shares the GIL with the bench that
+    # listens, so it runs on the live path's CPU (bench.cpu_placement)
+    bus = _open_virtual(channel_name)
+    player = CanPlayer(sim, bus, speed=speed, own_bus=True, cpus=live_cpus())
     if start:
         player.start()
     return player
