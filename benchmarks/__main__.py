@@ -28,7 +28,7 @@ DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 480),
     ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
-    ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 330),
+    ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 480),
     ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
     ("latency", {"seconds": 30.0, "tui": True}, {"seconds": 8.0, "tui": True}, 120),
 ]
@@ -116,7 +116,8 @@ def machine_line(m: dict[str, Any]) -> str:
         f"machine: {m['cpu']}, {m['cores']} cores ({m['cores_usable']} usable), "
         f"{m['memory_gb']} GB, {m['os']}; Python {m['python']}, numpy {m['numpy']}, "
         f"python-can {m['python-can']}, mcap {m['mcap']}, textual {m['textual']}; "
-        f"commit {m['commit']}; load avg at start {m['loadavg_at_start'][0]}"
+        f"commit {m['commit']}; load avg at start {m['loadavg_at_start'][0]}; "
+        f"{m.get('live_cpu', 'live path placement not recorded')}"
     )
 
 

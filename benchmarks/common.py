@@ -174,7 +174,19 @@ def machine_info() -> dict[str, Any]:
         "textual": _version("textual"),
         "loadavg_at_start": [round(x, 2) for x in load],
         "commit": git_commit(),
+        "live_cpu": live_cpu_text(),
     }
+
+
+def live_cpu_text() -> str:
+    """Where the live path's threads run (bench.cpu_placement, BENCH_LIVE_CPU)."""
+    from bench.cpu_placement import LIVE_CPU_ENV, live_cpus
+
+    cpus = live_cpus()
+    setting = os.environ.get(LIVE_CPU_ENV, "auto")
+    if cpus is None:
+        return f"live path unplaced ({LIVE_CPU_ENV}={setting})"
+    return f"live path on CPU {','.join(map(str, sorted(cpus)))} ({LIVE_CPU_ENV}={setting})"
 
 
 # ------------------------------------------------------------------------------- test data
