@@ -6,7 +6,7 @@ CPU gains them nothing. Spread over two CPUs (the scheduler's choice) each hand-
 thread on the other CPU, cache-cold, behind whatever runs there: the MCAP writer process, the
 TUI's screen process. Measured on 2 cores at 1 kHz x 3 channels: latency p99 2.0-2.8 ms
 without the TUI and 3.4-3.9 ms with it; with the live threads on one CPU and the writer and
-screen on the other, 0.3-0.4 ms in both cases (docs/BENCHMARKS.md).
+screen on the other, 0.3-0.4 ms and 0.4-0.8 ms (docs/BENCHMARKS.md).
 
 ``BENCH_LIVE_CPU`` chooses: ``auto`` (default; the highest CPU this process may use, when it
 may use two or more), a CPU number, or ``off`` (the scheduler decides, as before). A second

@@ -197,3 +197,31 @@ def test_a_bad_setting_stops_the_cli_with_one_line(tmp_path: Path) -> None:
     errors = [line for line in proc.stderr.splitlines() if line.startswith("bench: error:")]
     assert len(errors) == 1 and LIVE_CPU_ENV in errors[0], proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+@placeable
+def test_a_board_in_a_process_of_its_own_keeps_off_the_live_cpu() -> None:
+    """`bench emulate --pty` (or on a real bus) plays beside a bench, not inside one."""
+    allowed = set(os.sched_getaffinity(0))
+    env = {k: v for k, v in os.environ.items() if k != LIVE_CPU_ENV}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "bench", "emulate", "devices/scenarios/demo.toml", "--pty"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        assert "virtual board UART on" in proc.stdout.readline()
+        tasks = Path(f"/proc/{proc.pid}/task")
+
+        def masks() -> list[set[int]]:
+            return [affinity(int(t.name)) for t in tasks.iterdir()]
+
+        until(lambda: allowed - {max(allowed)} in masks(), "the player thread to place itself")
+        assert {max(allowed)} not in masks()
+    finally:
+        proc.terminate()
+        proc.wait(30)

@@ -108,17 +108,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace, sim: Any) -> int:
+    from bench.cpu_placement import other_cpus
     from devices.emulator import CanPlayer, PtyPlayer
 
+    # a board in a process of its own is not part of any bench's live path: it keeps off
+    # the CPU a bench on this machine gives its live threads (BENCH_LIVE_CPU)
+    cpus = other_cpus()
     if args.pty:
-        player: Any = PtyPlayer(sim.uart_stream(), sim.t0, speed=args.speed)
+        player: Any = PtyPlayer(sim.uart_stream(), sim.t0, speed=args.speed, cpus=cpus)
         print(f"virtual board UART on {player.slave_path} (921600 8N1); Ctrl-C stops", flush=True)
         unit = "packets"
     else:
         from devices.bus import describe_config, open_bus, resolve_bus_config
 
         config = resolve_bus_config(args.interface, args.channel, args.bitrate)
-        player = CanPlayer(sim, open_bus(config), speed=args.speed, own_bus=True)
+        player = CanPlayer(sim, open_bus(config), speed=args.speed, own_bus=True, cpus=cpus)
         print(f"virtual board on {describe_config(config)}; Ctrl-C stops", flush=True)
         unit = "frames"
     live = sys.stderr.isatty() and not args.quiet

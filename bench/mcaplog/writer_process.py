@@ -181,7 +181,7 @@ def _writer_main(conn: Connection) -> None:
     for sig in _CHILD_SIGNALS:
         signal.signal(sig, signal.SIG_IGN)  # the bench process ends the run, not a signal
     yield_cpu()  # the bench process's threads have the cores first
-    pin_thread(other_cpus())  # and the live path's CPU to themselves
+    pin_thread(other_cpus())  # and stay off the live path's CPU
     try:
         path, config, metadata, attachments, options = conn.recv()
     except (EOFError, OSError):

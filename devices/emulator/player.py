@@ -174,9 +174,15 @@ class PtyPlayer(_PacedPlayer):
     """
 
     def __init__(
-        self, stream: UartStream, t0: float, *, speed: float = 1.0, linger_s: float = 1.0
+        self,
+        stream: UartStream,
+        t0: float,
+        *,
+        speed: float = 1.0,
+        linger_s: float = 1.0,
+        cpus: frozenset[int] | None = None,
     ) -> None:
-        super().__init__(stream.packet_t - t0, speed, name="virtual-board-pty")
+        super().__init__(stream.packet_t - t0, speed, name="virtual-board-pty", cpus=cpus)
         self.stream = stream
         self.linger_s = linger_s
         self.master, self._slave = os.openpty()
