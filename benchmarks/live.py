@@ -67,6 +67,7 @@ class LatencySink:
         self.n = 0
         self.frames = 0
         self.results = 0
+        self.at_end = 0
 
     def write(self, step: Any) -> None:
         now = time.time()
@@ -75,6 +76,9 @@ class LatencySink:
         if len(res) == 0:
             return
         self.results += len(res)
+        if step.batch is None:  # the end of the run emitted these (a sample cut short when
+            self.at_end += len(res)  # the board stopped): no frame made them, no latency
+            return
         hist, top = self._hist, self.BINS + 1
         for t in res["t"].tolist():  # a live step has a result or two: plain floats are cheapest
             lat = (now - t) * 1000.0
