@@ -2,7 +2,7 @@
 
 Runs every measurement, each in a fresh Python process, prints the table (figure, anchor,
 ratio, target, PASS/MISS) with the machine it ran on, and writes it as JSON
-(default ``benchmarks/results.json``). The full run takes about 6 minutes on 2 cores;
+(default ``benchmarks/results.json``). The full run takes 3-5 minutes on 2 cores;
 ``--quick`` (smaller files, short live runs) about one minute and is for smoke-testing the
 harness, not for quoting.
 """
