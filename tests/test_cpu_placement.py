@@ -19,6 +19,9 @@ from bench import cpu_placement
 from bench.config import Config
 from bench.cpu_placement import LIVE_CPU_ENV, live_cpus, other_cpus, pin_thread, restore_thread
 from bench.errors import BenchError
+from bench.live import LiveRunner
+from bench.sinks import Sink
+from devices.bus import CanBusSource
 
 ROOT = Path(__file__).resolve().parent.parent
 placeable = pytest.mark.skipif(
@@ -29,6 +32,17 @@ placeable = pytest.mark.skipif(
 
 def affinity(tid: int) -> set[int]:
     return set(os.sched_getaffinity(tid))
+
+
+def placement() -> tuple[set[int], set[int], set[int]]:
+    """(all CPUs this process may use, the live CPU ``auto`` picks, the others)."""
+    allowed = set(os.sched_getaffinity(0))
+    return allowed, {max(allowed)}, allowed - {max(allowed)}
+
+
+def live_runner(channel: str, sinks: tuple[Sink, ...] = ()) -> LiveRunner:
+    source = CanBusSource(bus=can.Bus(interface="virtual", channel=channel), owns_bus=True)
+    return LiveRunner(source, Config(sample_rate_hz=200), list(sinks)).start()
 
 
 def until(cond: Callable[[], bool], what: str, timeout: float = 20.0) -> None:
@@ -103,18 +117,14 @@ def test_pin_and_restore_from_another_thread() -> None:
 def test_a_live_run_puts_its_threads_on_the_live_cpu(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.live import LiveRunner
     from bench.mcaplog.writer_process import McapProcessSink
-    from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, start_virtual_board
 
     monkeypatch.delenv(LIVE_CPU_ENV, raising=False)
-    allowed = set(os.sched_getaffinity(0))
-    live, rest = {max(allowed)}, allowed - {max(allowed)}
+    allowed, live, rest = placement()
     channel = f"placement-{os.getpid()}"
-    source = CanBusSource(bus=can.Bus(interface="virtual", channel=channel), owns_bus=True)
     sink = McapProcessSink(tmp_path / "placed.mcap", Config(sample_rate_hz=200))
-    runner = LiveRunner(source, Config(sample_rate_hz=200), [sink]).start()
+    runner = live_runner(channel, (sink,))
     scenario = scenario_from_dict({"duration_s": 20, "sample_rate_hz": 200, "seed": 1}, "t")
     board = start_virtual_board(scenario, channel)
     try:
@@ -132,13 +142,9 @@ def test_a_live_run_puts_its_threads_on_the_live_cpu(
 
 @placeable
 def test_off_leaves_the_live_threads_to_the_scheduler(monkeypatch: pytest.MonkeyPatch) -> None:
-    from bench.live import LiveRunner
-    from devices.bus import CanBusSource
-
     monkeypatch.setenv(LIVE_CPU_ENV, "off")
     allowed = set(os.sched_getaffinity(0))
-    source = CanBusSource(bus=can.Bus(interface="virtual", channel="placement-off"), owns_bus=True)
-    runner = LiveRunner(source, Config()).start()
+    runner = live_runner(f"placement-off-{os.getpid()}")
     try:
         until(lambda: runner._proc.native_id is not None, "the threads")
         time.sleep(0.1)  # they pin themselves first thing, if at all
@@ -156,7 +162,7 @@ def test_the_screen_of_an_engine_stays_off_the_live_cpu(
     from bench.engine_plans import BoardPlan
 
     monkeypatch.delenv(LIVE_CPU_ENV, raising=False)
-    allowed = set(os.sched_getaffinity(0))
+    allowed, _, rest = placement()
     plan = BoardPlan(
         config=Config(sample_rate_hz=200),
         scenario={"duration_s": 20, "sample_rate_hz": 200, "seed": 2},
@@ -166,8 +172,8 @@ def test_the_screen_of_an_engine_stays_off_the_live_cpu(
     )
     session = start_engine(plan)
     try:
-        assert set(os.sched_getaffinity(0)) == allowed - {max(allowed)}
-        assert affinity(session._channel._reader.native_id) == allowed - {max(allowed)}
+        assert set(os.sched_getaffinity(0)) == rest
+        assert affinity(session._channel._reader.native_id) == rest
     finally:
         session.stop()
     assert set(os.sched_getaffinity(0)) == allowed  # given back when the engine is gone
@@ -202,7 +208,7 @@ def test_a_bad_setting_stops_the_cli_with_one_line(tmp_path: Path) -> None:
 @placeable
 def test_a_board_in_a_process_of_its_own_keeps_off_the_live_cpu() -> None:
     """`bench emulate --pty` (or on a real bus) plays beside a bench, not inside one."""
-    allowed = set(os.sched_getaffinity(0))
+    _, live, rest = placement()
     env = {k: v for k, v in os.environ.items() if k != LIVE_CPU_ENV}
     proc = subprocess.Popen(
         [sys.executable, "-m", "bench", "emulate", "devices/scenarios/demo.toml", "--pty"],
@@ -220,8 +226,8 @@ def test_a_board_in_a_process_of_its_own_keeps_off_the_live_cpu() -> None:
         def masks() -> list[set[int]]:
             return [affinity(int(t.name)) for t in tasks.iterdir()]
 
-        until(lambda: allowed - {max(allowed)} in masks(), "the player thread to place itself")
-        assert {max(allowed)} not in masks()
+        until(lambda: rest in masks(), "the player thread to place itself")
+        assert live not in masks()
     finally:
         proc.terminate()
         proc.wait(30)
