@@ -61,6 +61,11 @@ def live_cpus() -> frozenset[int] | None:
     return frozenset({cpu})
 
 
+def live_cpu_label() -> str:
+    """The live CPU as a run's metadata and the benchmarks write it: "1", or "any"."""
+    return ",".join(str(c) for c in sorted(live_cpus() or ())) or "any"
+
+
 def other_cpus() -> frozenset[int] | None:
     """The CPUs for everything else (writer, screen), or None when nothing is placed."""
     live = live_cpus()

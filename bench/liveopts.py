@@ -19,7 +19,7 @@ from typing import Any
 
 from bench import __version__
 from bench.config import Config
-from bench.cpu_placement import live_cpus
+from bench.cpu_placement import live_cpu_label, live_cpus
 from bench.errors import BenchError
 from devices.base import LiveSource
 
@@ -129,7 +129,7 @@ def run_metadata(
         "config_toml": config.to_toml(),
         "command": " ".join(sys.argv),
         "started_utc": datetime.now(UTC).isoformat(),
-        "live_cpu": ",".join(str(c) for c in sorted(live_cpus() or ())) or "any",
+        "live_cpu": live_cpu_label(),
     }
     if setup.scenario_path is not None:
         meta["scenario"] = str(setup.scenario_path)

@@ -180,13 +180,12 @@ def machine_info() -> dict[str, Any]:
 
 def live_cpu_text() -> str:
     """Where the live path's threads run (bench.cpu_placement, BENCH_LIVE_CPU)."""
-    from bench.cpu_placement import LIVE_CPU_ENV, live_cpus
+    from bench.cpu_placement import LIVE_CPU_ENV, live_cpu_label
 
-    cpus = live_cpus()
+    label = live_cpu_label()
     setting = os.environ.get(LIVE_CPU_ENV, "auto")
-    if cpus is None:
-        return f"live path unplaced ({LIVE_CPU_ENV}={setting})"
-    return f"live path on CPU {','.join(map(str, sorted(cpus)))} ({LIVE_CPU_ENV}={setting})"
+    where = "unplaced" if label == "any" else f"on CPU {label}"
+    return f"live path {where} ({LIVE_CPU_ENV}={setting})"
 
 
 # ------------------------------------------------------------------------------- test data

@@ -17,7 +17,14 @@ import pytest
 
 from bench import cpu_placement
 from bench.config import Config
-from bench.cpu_placement import LIVE_CPU_ENV, live_cpus, other_cpus, pin_thread, restore_thread
+from bench.cpu_placement import (
+    LIVE_CPU_ENV,
+    live_cpu_label,
+    live_cpus,
+    other_cpus,
+    pin_thread,
+    restore_thread,
+)
 from bench.errors import BenchError
 from bench.live import LiveRunner
 from bench.sinks import Sink
@@ -62,6 +69,7 @@ def two_cpus(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_auto_takes_the_highest_cpu_and_leaves_the_rest(two_cpus: None) -> None:
     assert live_cpus() == {5}
     assert other_cpus() == {0, 1, 2}
+    assert live_cpu_label() == "5"
 
 
 def test_a_chosen_cpu_and_off(two_cpus: None, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -69,6 +77,7 @@ def test_a_chosen_cpu_and_off(two_cpus: None, monkeypatch: pytest.MonkeyPatch) -
     assert live_cpus() == {1} and other_cpus() == {0, 2, 5}
     monkeypatch.setenv(LIVE_CPU_ENV, "OFF")
     assert live_cpus() is None and other_cpus() is None
+    assert live_cpu_label() == "any"
 
 
 def test_one_cpu_places_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
