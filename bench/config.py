@@ -46,6 +46,38 @@ class EstimatorSettings:
     jerk_psd: float = 1e-4  # Kalman process noise (white jerk), (m/s^3)^2/Hz
     a_ref_sigma_mps2: float = 0.01  # a_ref unavailable while the filter's own 1-sigma exceeds this
     clock_drift_ppm: float = 1000.0  # how fast a clock offset estimate may rise (ppm of time)
+    # the joint filter (docs/ESTIMATOR.md): process noise
+    accel_psd: float = 0.1  # acceleration random walk, (m/s^2)^2/s
+    grade_psd_per_m: float = 1e-9  # g sin(alpha) random walk per metre, (m/s^2)^2/m
+    grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m
+    grade_sigma0_mps2: float = 0.5  # 1-sigma of g sin(alpha) before any information
+    grade_rate_sigma0: float = 0.003  # 1-sigma of its rate per metre at the start, (m/s^2)/m
+    trend_alpha: float = 0.15  # weight of a frame in the moving mean of normalised innovations
+    trend_limit: float = 0.8  # |that mean| beyond this: a vertical curve starts or ends
+    grade_rate_jump: float = 0.003  # 1-sigma added to the grade's rate per metre then
+    grade_jump_mps2: float = 0.005  # 1-sigma added to g sin(alpha) then
+    # odometer
+    speed_quantum_mps: float = 0.001  # SPEED_REF resolution (adds quantum^2/12 of variance)
+    odometer_noise_floor_mps: float = 0.0005  # least odometer noise the filter assumes
+    speed_noise_max_mps: float = 0.05  # cap of the noise learnt from the odometer innovations
+    odometer_latency_s: float = 0.0  # SPEED_REF reports v(t - latency) beyond the clock mapping
+    latency_sigma_s: float = 0.0  # initial 1-sigma of that latency; 0 = not estimated
+    latency_psd: float = 1e-6  # its random walk, s^2/s (when estimated)
+    odometer_gate_sigma: float = 4.0  # innovation beyond this many sigma: frame rejected
+    suspect_recover_s: float = 0.5  # accepted frames for this long before "suspect" clears
+    odometer_reset_s: float = 2.0  # rejected this long: restart the speed at the odometer
+    slip_accel_mps2: float = 0.3  # innovation slope beyond this: slip/slide, not the model
+    # standstill and channels
+    zupt_accel_sigma_mps2: float = 0.002  # zero-velocity update: a = 0 with this 1-sigma
+    zupt_gate_mps2: float = 0.02  # |u - g sin(alpha)| beyond this at standstill: it moves
+    channel_noise_floor_mps2: float = 1e-5  # least channel noise assumed (1-sigma)
+    channel_noise_tau_s: float = 2.0  # time constant of the noise learnt from the residual
+
+
+ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s"})
+"""Estimator settings that may be 0 (every other one must be > 0)."""
+SIGMA_LIMIT_MAX = 100.0
+"""Upper bound of fusion.gradient_sigma_limit_permil (beyond it a sigma says nothing)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +89,7 @@ class Config:
     )
     g: float = G0
     tolerance_permil: float = 1.0
+    gradient_sigma_limit_permil: float = 0.5  # estimator gradient withheld beyond this 1-sigma
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     source: str = "<defaults>"
     path: str | None = None  # the file it was read from
@@ -90,6 +123,7 @@ class Config:
             "[fusion]",
             f"g = {self.g!r}",
             f"tolerance_permil = {self.tolerance_permil!r}",
+            f"gradient_sigma_limit_permil = {self.gradient_sigma_limit_permil!r}",
             "",
         ]
         lines.append("[estimator]")
@@ -167,13 +201,21 @@ def config_from_dict(
     angles = [c.angle_deg for c in cals]
     if len(set(angles)) < 3:
         raise error(source, "channels", f"the three angle_deg values must differ, got {angles}")
-    fusion = _table(f"{source}: fusion", data.get("fusion", {}), {"g", "tolerance_permil"})
+    fusion = _table(
+        f"{source}: fusion",
+        data.get("fusion", {}),
+        {"g", "tolerance_permil", "gradient_sigma_limit_permil"},
+    )
     g = _number(source, "fusion.g", fusion.get("g", G0), 0, lo_open=True)
     tol = _number(source, "fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0), 0)
+    key = "fusion.gradient_sigma_limit_permil"
+    limit = _number(source, key, fusion.get("gradient_sigma_limit_permil", 0.5), 0, lo_open=True)
+    if not limit <= SIGMA_LIMIT_MAX:
+        raise error(source, key, f"must be at most {SIGMA_LIMIT_MAX:g}, got {limit!r}")
     est_defaults = asdict(EstimatorSettings())
     est = _table(f"{source}: estimator", data.get("estimator", {}), set(est_defaults))
     est_values = {
-        k: float(_number(source, f"estimator.{k}", est.get(k, v), 0, lo_open=True))
+        k: float(_number(source, f"estimator.{k}", est.get(k, v), 0, lo_open=k not in ZERO_ALLOWED))
         for k, v in est_defaults.items()
     }
     return Config(
@@ -182,6 +224,7 @@ def config_from_dict(
         channels=tuple(cals),  # type: ignore[arg-type]
         g=float(g),
         tolerance_permil=float(tol),
+        gradient_sigma_limit_permil=float(limit),
         estimator=EstimatorSettings(**est_values),
         source=source,
         path=path,

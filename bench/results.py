@@ -24,8 +24,8 @@ RESULT_DTYPE = np.dtype(
         ("weights", "<f8", (3,)),  # w12, w23, w13
         ("gradient", "<f8"),  # reference result per mille; NaN when invalid
         ("valid", "?"),
-        # the bench's own estimator (METHOD.md section 5)
-        ("gradient_signed", "<f8"),  # per mille; NaN when unavailable
+        # the bench's own estimator (METHOD.md section 5, docs/ESTIMATOR.md)
+        ("gradient_signed", "<f8"),  # joint filter, per mille; NaN when withheld
         ("gradient_ls", "<f8"),  # least-squares magnitude per mille (no a_ref needed)
         ("u", "<f8"),  # specific force along the track, m/s^2
         ("w", "<f8"),  # specific force normal to the track, m/s^2
@@ -33,6 +33,9 @@ RESULT_DTYPE = np.dtype(
         ("residual", "<f8"),  # least-squares residual, m/s^2
         ("degraded", "?"),  # computed from two channels only
         ("excluded", "u1"),  # channel excluded by the estimator (1..3), 0 = none
+        ("gradient_sigma", "<f8"),  # 1-sigma of the estimator's gradient, per mille
+        ("odometer_suspect", "?"),  # SPEED_REF rejected by the innovation gate (slip/slide)
+        ("coasting", "?"),  # no SPEED_REF for coast_s: the filter runs on the accelerometers
     ]
 )
 
@@ -58,6 +61,9 @@ CSV_COLUMNS = [
     "residual",
     "degraded",
     "excluded",
+    "gradient_sigma",
+    "odometer_suspect",
+    "coasting",
 ]
 
 
@@ -77,6 +83,8 @@ def csv_columns(results: np.ndarray) -> list[list[str]]:
     cols += [_fmt(results["gradient_signed"]), _fmt(results["a_ref"]), _fmt(results["residual"])]
     cols += [[str(int(v)) for v in results["degraded"].tolist()]]
     cols += [[str(v) if v else "" for v in results["excluded"].tolist()]]
+    cols += [_fmt(results["gradient_sigma"])]
+    cols += [[str(int(v)) for v in results[k].tolist()] for k in ("odometer_suspect", "coasting")]
     return cols
 
 

@@ -83,7 +83,7 @@ def test_random_batches_give_bit_identical_results(receive_times: str) -> None:
     assert whole_ev.tobytes() == cut_ev.tobytes()
     # and the run exercised what it should
     assert set(whole_ev["value"][whole_ev["kind"] == EventKind.EXCLUDED]) >= {2, 3, 4}
-    assert np.isfinite(whole["gradient_signed"]).mean() > 0.8
+    assert np.isfinite(whole["gradient_signed"]).mean() > 0.6  # faults and a dropout withhold
     assert np.isnan(whole["a_ref"]).any() and (whole["a_ref"] == 0.0).any()
 
 

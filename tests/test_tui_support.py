@@ -177,9 +177,10 @@ class NoEstimator:
         from bench.results import RESULT_DTYPE
 
         names = ["gradient_signed", "gradient_ls", "u", "w", "a_ref", "residual"]
-        dtype = np.dtype([(n, RESULT_DTYPE[n]) for n in [*names, "degraded", "excluded"]])
+        flags = ["degraded", "excluded", "gradient_sigma", "odometer_suspect", "coasting"]
+        dtype = np.dtype([(n, RESULT_DTYPE[n]) for n in [*names, *flags]])
         out = np.zeros(len(samples), dtype=dtype)
-        for name in names:
+        for name in [*names, "gradient_sigma"]:
             out[name] = np.nan
         return out, np.zeros(0, dtype=EVENT_DTYPE)
 

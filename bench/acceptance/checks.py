@@ -830,3 +830,9 @@ def overall(measurements: list[Measurement]) -> str:
 
 
 EXIT_CODES = {"pass": 0, "fail": 1, "error": 2}
+
+
+# the joint filter's own checks live beside these (sigma coverage, odometer verdicts)
+from bench.acceptance.filter_checks import FILTER_KINDS  # noqa: E402
+
+KINDS.update(FILTER_KINDS)

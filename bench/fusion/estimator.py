@@ -18,14 +18,13 @@ import numpy as np
 from bench.config import Config
 from bench.events import EVENT_DTYPE
 from bench.fusion.isolation import ExclusionLatch, Reason, ResidualIsolator, StuckDetector
+from bench.fusion.joint import JointFilter
 from bench.fusion.least_squares import (
     FULL,
     geometry,
     magnitude_gradient,
     magnitude_gradient_one,
     mask_code,
-    signed_gradient,
-    signed_gradient_one,
     solve_channels,
     solve_full,
     solve_one,
@@ -43,6 +42,9 @@ ESTIMATE_DTYPE = np.dtype(
         ("residual", "<f8"),
         ("degraded", "?"),
         ("excluded", "u1"),
+        ("gradient_sigma", "<f8"),
+        ("odometer_suspect", "?"),
+        ("coasting", "?"),
     ]
 )
 
@@ -103,6 +105,8 @@ class Estimator:
         window = max(round(s.residual_window_s * config.sample_rate_hz), 1)
         self.isolator = ResidualIsolator(self.geo, config.g, s.residual_limit_mps2, window)
         self.latch = ExclusionLatch(_ticks(s.recover_s))
+        self.filter = JointFilter(config, self.geo)
+        self._was_latched = [False, False, False]
 
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
@@ -140,27 +144,42 @@ class Estimator:
         cand = healthy[0] & healthy[1] & healthy[2]
         acc_healthy = acc if cand.all() else np.where(healthy, acc, 0.0)
         residual, single = self.isolator.push(acc_healthy, cand, a_ref)
-        latched, events = self.latch.push(
-            ticks, samples["t"], samples["n"], _reasons(single, stuck, present & ~usable)
-        )
+        reason = _reasons(single, stuck, present & ~usable)
+        latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
         used = usable & ~latched
         out = np.empty(n, dtype=ESTIMATE_DTYPE)
         if used.all():
             u, w = solve_full(acc, self.geo)
             out["degraded"] = False
             out["excluded"] = 0
+            code = np.full(n, FULL, dtype=np.int64)
         else:
             code = mask_code(used)
             u, w = solve_channels(np.where(used, acc, 0.0), code, self.geo)
             out["degraded"] = code != FULL
             out["excluded"] = _EXCLUDED_OF_MASK[code]
-        out["gradient_signed"] = signed_gradient(u, w, a_ref)
+        starts = self._exclusion_starts(latched, reason)
+        fo = self.filter.push(ticks * TICK_S, u, code, residual, starts, self.a_ref.applied)
+        out["gradient_signed"] = fo.gradient
+        out["gradient_sigma"] = fo.sigma
+        out["odometer_suspect"] = fo.suspect
+        out["coasting"] = fo.coasting
         out["gradient_ls"] = magnitude_gradient(w, self.g)
         out["u"] = u
         out["w"] = w
         out["a_ref"] = a_ref
         out["residual"] = residual
         return out, events
+
+    def _exclusion_starts(self, latched: np.ndarray, reason: np.ndarray) -> np.ndarray:
+        """(N,) an exclusion by the residual starts at this sample ((3, N) latched flags and
+        reasons): the channel's error grew slowly until then and may sit in the gradient."""
+        prev = np.empty_like(latched)
+        prev[:, 0] = self._was_latched
+        prev[:, 1:] = latched[:, :-1]
+        self._was_latched = latched[:, -1].tolist()
+        new = latched & ~prev & (reason == _RESIDUAL)
+        return new[0] | new[1] | new[2]
 
     def _push_scalar(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
@@ -197,10 +216,20 @@ class Estimator:
         geo, g = self.geo, self.g
         a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
         isolate, latch = self.isolator.step, self.latch.step
-        for ticks, t, seq, n, code, present, a, ok in zip(
-            ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True
+        applied = self.a_ref.rows
+        applied.clear()
+        anchors: list[int] = []
+        u_l: list[float] = []
+        mask_l: list[int] = []
+        res_l: list[float] = []
+        start_l: list[bool] = []
+        was_latched = self._was_latched
+        for i, (ticks, t, seq, n, code, present, a, ok) in enumerate(
+            zip(ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True)
         ):
             a_ref = a_ref_step(ticks, t, seq)
+            if len(applied) > len(anchors):
+                anchors += [i] * (len(applied) - len(anchors))
             stuck = stuck_step(ticks, code, present)
             a0, a1, a2 = a
             o0, o1, o2 = ok
@@ -215,6 +244,13 @@ class Estimator:
                 else _NO_REASON
             )
             (l0, l1, l2), ev = latch(ticks, t, n, reason)
+            w0, w1, w2 = was_latched
+            start_l.append(
+                (l0 and not w0 and reason[0] == _RESIDUAL)
+                or (l1 and not w1 and reason[1] == _RESIDUAL)
+                or (l2 and not w2 and reason[2] == _RESIDUAL)
+            )
+            was_latched = [l0, l1, l2]
             if ev:
                 events += ev
             u0, u1, u2 = o0 and not l0, o1 and not l1, o2 and not l2
@@ -222,9 +258,11 @@ class Estimator:
             if mask != FULL:
                 a = (a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0)
             u, w = solve_one(a, mask, geo)
+            u_l.append(u)
+            mask_l.append(mask)
+            res_l.append(residual)
             rows.append(
                 (
-                    signed_gradient_one(u, w, a_ref),
                     magnitude_gradient_one(w, g),
                     u,
                     w,
@@ -234,4 +272,35 @@ class Estimator:
                     EXCLUDED_OF_MASK[mask],
                 )
             )
-        return rows, events
+        self._was_latched = was_latched
+        frames = None
+        if applied:
+            when, speed, restart, still = zip(*applied, strict=True)
+            frames = (
+                np.array(anchors, dtype=np.int64),
+                np.array(when, dtype=np.float64),
+                np.array(speed, dtype=np.float64),
+                np.array(restart, dtype=np.bool_),
+                np.array(still, dtype=np.bool_),
+            )
+            applied.clear()
+        fo = self.filter.push(
+            np.array(ticks_l, dtype=np.int64) * TICK_S,
+            np.array(u_l),
+            np.array(mask_l, dtype=np.int64),
+            np.array(res_l),
+            np.array(start_l, dtype=np.bool_),
+            frames,
+        )
+        out = [
+            (gr, *row, sg, su, co)
+            for gr, row, sg, su, co in zip(
+                fo.gradient.tolist(),
+                rows,
+                fo.sigma.tolist(),
+                fo.suspect.tolist(),
+                fo.coasting.tolist(),
+                strict=True,
+            )
+        ]
+        return out, events

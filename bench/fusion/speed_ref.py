@@ -91,6 +91,7 @@ class ReferenceAcceleration:
         self._board_base = _INF  # running min for the board offset
         self._odo_base = _INF  # running min for the odometer offset
         self._started = False
+        self._restart = np.zeros(0, dtype=bool)
         # the last applied frame, for unwrapping the odometer timestamp
         self._prev_ts = 0
         self._prev_t = math.nan
@@ -99,6 +100,10 @@ class ReferenceAcceleration:
         self._zero_since: int | None = None  # odometer ticks of the first 0 mm/s of a run
         # the newest applied frame: acceleration, board time, standstill, filter settled
         self._last: tuple[float, float, bool, bool] = (math.nan, math.nan, False, False)
+        # frames applied by the last push (anchor index, board time measured, speed m/s,
+        # restart, standstill), for the joint filter; :meth:`step` appends to ``rows``
+        self.applied: tuple[np.ndarray, ...] | None = None
+        self.rows: list[tuple[float, float, bool, bool]] = []
 
     def buffer(self, speeds: np.ndarray) -> None:
         """Keep this step's SPEED_REF frames until samples may apply them."""
@@ -118,9 +123,12 @@ class ReferenceAcceleration:
         anchors = np.searchsorted(run_max, self._pending["seq"], side="right")
         k_new = int(np.searchsorted(anchors, len(b), side="left"))
         acc, when, still, ok = (np.array([v]) for v in self._last)
+        self.applied = None
         if k_new:
             anchors = anchors[:k_new]
-            new = self._apply(self._pending[:k_new], b[anchors], board_off[anchors])
+            frames = self._pending[:k_new]
+            new = self._apply(frames, b[anchors], board_off[anchors])
+            self.applied = (anchors, new[1], frames["speed"] * 1e-3, self._restart, new[2])
             self._keep(self._pending[k_new:])
             acc, when, still, ok = (
                 np.concatenate([h, x]) for h, x in zip((acc, when, still, ok), new, strict=True)
@@ -213,6 +221,7 @@ class ReferenceAcceleration:
         when = np.where(np.isfinite(mapped), mapped, anchor_b)
         speed = (frames["speed"] * 1e-3).tolist()
         acc, var = self.kf.run((d * TICK_S).tolist(), speed, restart.tolist())
+        self._restart = restart
         ok = np.array(var) <= s.a_ref_sigma_mps2 * s.a_ref_sigma_mps2
         self._prev_ts, self._prev_t = int(ts[-1]), float(t[-1])
         self._prev_anchor_b = float(anchor_b[-1])
@@ -251,6 +260,7 @@ class ReferenceAcceleration:
         mapped = o + (self.rho * o + base) - anchor_off if math.isfinite(base) else math.nan
         when = mapped if math.isfinite(mapped) else anchor_b
         acc, var = self.kf.run([d * TICK_S], [speed_mm * 1e-3], [restart])
+        self.rows.append((when, speed_mm * 1e-3, restart, still))
         self._prev_ts, self._prev_t, self._prev_anchor_b = ts, t, anchor_b
         self._odo_ticks = odo
         self._zero_since = since if zero else None

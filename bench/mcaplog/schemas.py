@@ -212,7 +212,7 @@ _DESCRIPTIONS = {
     "time_s": "board time since the first sample, s",
     "gradient": "reference method result, per mille; null = NaN (invalid)",
     "valid": "reference gradient valid (at least one vote passed)",
-    "gradient_signed": "estimator gradient, per mille; null = unavailable",
+    "gradient_signed": "estimator (joint filter) gradient, per mille; null = withheld",
     "gradient_ls": "least-squares magnitude, per mille",
     "u": "specific force along the track, m/s^2",
     "w": "specific force normal to the track, m/s^2",
@@ -220,6 +220,9 @@ _DESCRIPTIONS = {
     "residual": "least-squares residual, m/s^2",
     "degraded": "computed from two channels only",
     "excluded": "channel excluded by the estimator (1..3), 0 = none",
+    "gradient_sigma": "1-sigma of the estimator gradient, per mille (given even when withheld)",
+    "odometer_suspect": "SPEED_REF rejected by the filter's innovation gate (slip or slide)",
+    "coasting": "no SPEED_REF for coast_s: the filter runs on the accelerometers alone",
 }
 
 

@@ -229,7 +229,7 @@ class BenchApp(App[int]):
             return
         row = self._row(snap)
         self.query_one(PairsPanel).show(
-            row, snap.tolerance_permil, cursor=self.cursor_n is not None
+            row, snap.tolerance_permil, cursor=self.cursor_n is not None, rows=snap.results
         )
         self.query_one(ChannelsPanel).show(row, snap.stats, rates)
         self.query_one(GradientPlot).show(plot, plot_size(plot) if plot is not None else None)

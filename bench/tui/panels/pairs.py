@@ -1,7 +1,8 @@
 """Per-pair panel: g12/g23/g13, the three votes, the weights and the final gradient, large.
 
 This is the centre of the screen: it shows one fusion result row exactly as computed
-(reference method, METHOD.md 1-3), next to the bench's own signed estimate (section 5),
+(reference method, METHOD.md 1-3), next to the bench's own signed estimate (section 5)
+with its 1-sigma and its mean, min and max over the last few seconds,
 so an engineer sees at a glance when and why the reference method loses the answer.
 """
 
@@ -71,34 +72,69 @@ def final_text(row: np.void | None) -> str:
     return f"{float(row['gradient']):6.2f}"  # fixed width: no relayout on every update
 
 
+WINDOW_S = 5.0
+"""Span of the windowed mean, min and max shown under "ours" (board time up to the row)."""
+
+
 def ours_text(row: np.void | None) -> tuple[str, str]:
-    """Our estimator's figure for the Digits widget and what it is ('signed', '|LS|', 'n/a')."""
+    """Our estimator's figure for the Digits widget and what it is: the 1-sigma
+    ('±0.12 σ') when given, 'withheld' (sigma above the limit), '|LS|' or 'n/a'."""
     if row is None:
         return " --.--", "n/a"
     signed = float(row["gradient_signed"])
+    sigma = float(row["gradient_sigma"])
     if math.isfinite(signed):
-        return f"{signed:+6.2f}", "signed"
+        return f"{signed:+6.2f}", f"±{num(sigma, '.2f')} σ"
     ls = float(row["gradient_ls"])
+    if math.isfinite(sigma):
+        return " --.--", "withheld"
     if math.isfinite(ls):
         return f"{ls:6.2f}", "|LS|"
     return " --.--", "n/a"
 
 
-def ours_detail(row: np.void | None) -> Text:
-    """One line on the estimator: a_ref, residual, exclusion."""
+def ours_window(
+    rows: np.ndarray | None, row: np.void | None, span_s: float = WINDOW_S
+) -> tuple[float, float, float] | None:
+    """(mean, min, max) of the given estimator gradients over the ``span_s`` up to ``row``,
+    None when there are none."""
+    if rows is None or row is None or len(rows) == 0:
+        return None
+    t = rows["time_s"]
+    t1 = float(row["time_s"])
+    sel = (t <= t1) & (t > t1 - span_s)
+    g = rows["gradient_signed"][sel]
+    g = g[np.isfinite(g)]
+    if len(g) == 0:
+        return None
+    return float(np.mean(g)), float(np.min(g)), float(np.max(g))
+
+
+def ours_detail(row: np.void | None, window: tuple[float, float, float] | None = None) -> Text:
+    """Two lines on the estimator: the windowed mean, min and max, then LS magnitude,
+    residual, exclusion and the odometer's state."""
     if row is None:
         return Text("")
+    text = Text(f"σ {num(row['gradient_sigma'], '.2f')} ‰  ")
+    if window is None:
+        text.append(f"{WINDOW_S:g} s: {MISSING}\n")
+    else:
+        mean, lo, hi = window
+        text.append(f"{WINDOW_S:g} s: mean {mean:+.2f}  min {lo:+.2f}  max {hi:+.2f}\n")
     parts = [
         f"LS {num(row['gradient_ls'], '.2f')}‰",
-        f"a_ref {num(row['a_ref'], '+.3f')}",
         f"res {num(row['residual'], '.4f')}",
     ]
-    text = Text("ours: " + "  ".join(parts), style="dim")
+    text.append("ours: " + "  ".join(parts), style="dim")
     ex = int(row["excluded"])
     if ex:
         text.append(f"  ch{ex} excluded", style="bold yellow")
     if bool(row["degraded"]):
         text.append("  degraded", style="yellow")
+    if bool(row["odometer_suspect"]):
+        text.append("  odometer suspect", style="bold yellow")
+    if bool(row["coasting"]):
+        text.append("  coasting", style="yellow")
     return text
 
 
@@ -118,7 +154,15 @@ class PairsPanel(Vertical):
         self.border_title = "Per pair"
         self.values: dict[str, str] = {}
 
-    def show(self, row: np.void | None, tolerance: float, *, cursor: bool = False) -> None:
+    def show(
+        self,
+        row: np.void | None,
+        tolerance: float,
+        *,
+        cursor: bool = False,
+        rows: np.ndarray | None = None,
+    ) -> None:
+        """Show ``row``; ``rows`` (recent results) feed the windowed mean, min and max."""
         state = grade_state(row)
         where = "at cursor" if cursor else "latest"
         if row is not None:
@@ -140,11 +184,15 @@ class PairsPanel(Vertical):
         ours, kind = ours_text(row)
         ours_w = self.query_one("#ours", Digits)
         ours_w.update(ours)
-        ours_w.set_class(kind == "n/a", "none")
+        ours_w.set_class(kind == "n/a" or kind.startswith("withheld"), "none")
         ours_w.set_class(row is not None and bool(row["degraded"]), "degraded")
         self.query_one("#ours-label", Static).update(f"‰ ours\n{kind}", layout=False)
-        self.query_one("#ours-detail", Static).update(ours_detail(row), layout=False)
+        window = ours_window(rows, row)
+        self.query_one("#ours-detail", Static).update(ours_detail(row, window), layout=False)
         self.values = {"final": final_text(row).strip(), "state": state, "ours": ours.strip()}
+        self.values["ours_kind"] = kind
+        if window is not None:
+            self.values.update(zip(("ours_mean", "ours_min", "ours_max"), window, strict=True))
         if row is not None:
             for k in range(3):
                 self.values[PAIR_NAMES[k]] = num(row["slopes"][k], ".3f")

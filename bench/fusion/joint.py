@@ -1,0 +1,146 @@
+"""The joint filter (speed, acceleration, gradient): settings, state and one call per push.
+
+The arithmetic is in :mod:`bench.fusion.joint_kernel`, compiled once; this module holds the
+state between pushes and turns settings into the kernel's parameter vector. Every push,
+whatever its length, goes through the same compiled loop, which is what keeps live and
+replay identical to the bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.config import Config
+from bench.fusion import joint_kernel as jk
+from bench.fusion.least_squares import Geometry
+
+_EMPTY_F = np.zeros(0)
+_EMPTY_I = np.zeros(0, dtype=np.int64)
+_EMPTY_B = np.zeros(0, dtype=np.bool_)
+
+
+def parameters(config: Config) -> np.ndarray:
+    """The kernel's parameter vector from a config."""
+    s = config.estimator
+    p = np.zeros(jk.P_SIZE)
+    p[jk.P_QA] = s.accel_psd
+    p[jk.P_QS] = s.grade_psd_per_m
+    p[jk.P_QK] = s.grade_rate_psd_per_m
+    p[jk.P_QL] = s.latency_psd
+    p[jk.P_RV] = s.odometer_noise_floor_mps**2 + s.speed_quantum_mps**2 / 12.0
+    p[jk.P_RV0] = s.speed_noise_mps**2 + s.speed_quantum_mps**2 / 12.0
+    p[jk.P_GATE] = s.odometer_gate_sigma**2
+    p[jk.P_RECOVER] = s.suspect_recover_s
+    p[jk.P_RESET] = s.odometer_reset_s
+    p[jk.P_SLIP] = s.slip_accel_mps2
+    p[jk.P_COAST] = s.coast_s
+    p[jk.P_RZ] = s.zupt_accel_sigma_mps2**2
+    p[jk.P_ZGATE] = s.zupt_gate_mps2
+    p[jk.P_ZHOLD] = s.standstill_s
+    p[jk.P_NOISE_FLOOR] = s.channel_noise_floor_mps2**2
+    p[jk.P_NOISE_TAU] = s.channel_noise_tau_s
+    p[jk.P_G] = config.g
+    p[jk.P_LIMIT] = config.gradient_sigma_limit_permil
+    p[jk.P_S0] = s.grade_sigma0_mps2
+    p[jk.P_K0] = s.grade_rate_sigma0
+    p[jk.P_A0] = 1.0
+    p[jk.P_L0] = s.odometer_latency_s
+    p[jk.P_LSIG] = s.latency_sigma_s
+    p[jk.P_RV_MAX] = s.speed_noise_max_mps**2
+    p[jk.P_RV_TAU] = 200.0
+    p[jk.P_EXCL] = s.residual_limit_mps2
+    p[jk.P_TREND_ALPHA] = s.trend_alpha
+    p[jk.P_TREND_LIMIT] = s.trend_limit
+    p[jk.P_KJUMP] = s.grade_rate_jump
+    p[jk.P_SJUMP] = s.grade_jump_mps2
+    return p
+
+
+def u_variance_factors(geo: Geometry) -> np.ndarray:
+    """(H^T H)^-1 uu per channel-mask code: the variance of u per unit channel noise
+    variance (sum of the squared u-row of the pseudo-inverse); inf below two channels."""
+    out = np.full(8, math.inf)
+    for code in range(8):
+        row = geo.pinv_array[code, 0]
+        if np.isfinite(row).all():
+            out[code] = float(np.dot(row, row))
+    return out
+
+
+@dataclass(slots=True)
+class FilterOutput:
+    gradient: np.ndarray  # permil, NaN where withheld
+    sigma: np.ndarray  # 1-sigma, permil
+    suspect: np.ndarray  # odometer suspect
+    coasting: np.ndarray  # no SPEED_REF for coast_s
+    accel: np.ndarray  # the filter's acceleration, m/s^2
+
+
+class JointFilter:
+    """Stateful; :meth:`push` every batch of samples in order, with the frames they apply."""
+
+    def __init__(self, config: Config, geo: Geometry) -> None:
+        self.p = parameters(config)
+        self.x, self.cov, self.m = jk.new_state(self.p)
+        self.ru = u_variance_factors(geo)
+
+    def push(
+        self,
+        b: np.ndarray,
+        u: np.ndarray,
+        mask: np.ndarray,
+        residual: np.ndarray,
+        latched: np.ndarray,
+        frames: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
+    ) -> FilterOutput:
+        """b board time (s), u, channel-mask code, parity residual and exclusion starts per
+        sample; frames:
+        (anchor index, board time measured, speed m/s, restart, standstill) or None."""
+        n = len(b)
+        out = FilterOutput(
+            np.empty(n), np.empty(n), np.empty(n, np.bool_), np.empty(n, np.bool_), np.empty(n)
+        )
+        fa, fw, fs, fr, fst = (
+            frames if frames is not None else (_EMPTY_I, _EMPTY_F, _EMPTY_F, _EMPTY_B, _EMPTY_B)
+        )
+        jk.run(
+            self.x, self.cov, self.m, self.p,
+            np.ascontiguousarray(b, dtype=np.float64),
+            np.ascontiguousarray(u, dtype=np.float64),
+            np.ascontiguousarray(mask, dtype=np.int64),
+            np.ascontiguousarray(residual, dtype=np.float64),
+            np.ascontiguousarray(latched, dtype=np.bool_),
+            self.ru,
+            np.ascontiguousarray(fa, dtype=np.int64),
+            np.ascontiguousarray(fw, dtype=np.float64),
+            np.ascontiguousarray(fs, dtype=np.float64),
+            np.ascontiguousarray(fr, dtype=np.bool_),
+            np.ascontiguousarray(fst, dtype=np.bool_),
+            out.gradient, out.sigma, out.suspect, out.coasting, out.accel,
+        )  # fmt: skip
+        return out
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) the kernel before acquisition starts."""
+    cfg = Config()
+    from bench.fusion.least_squares import geometry
+
+    f = JointFilter(cfg, geometry(cfg.angles_rad))
+    f.push(
+        np.array([0.0, 0.005]),
+        np.array([0.0, 0.0]),
+        np.array([7, 7]),
+        np.array([0.0, math.nan]),
+        np.array([False, False]),
+        (
+            np.array([1]),
+            np.array([0.0]),
+            np.array([0.0]),
+            np.array([False]),
+            np.array([False]),
+        ),
+    )
