@@ -56,6 +56,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_TREND_LIMIT] = s.trend_limit
     p[jk.P_KJUMP] = s.grade_rate_jump
     p[jk.P_SJUMP] = s.grade_jump_mps2
+    p[jk.P_UGATE] = 25.0
     return p
 
 

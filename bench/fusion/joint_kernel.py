@@ -83,7 +83,8 @@ P_TREND_ALPHA = 26  # weight of a new frame in that moving mean
 P_TREND_LIMIT = 27  # |moving mean| beyond this: the grade's rate has changed
 P_KJUMP = 28  # 1-sigma added to k then, (m/s^2)/m
 P_SJUMP = 29  # 1-sigma added to s then, m/s^2
-P_SIZE = 30
+P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
+P_SIZE = 31
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -331,7 +332,12 @@ def run(  # type: ignore[no-untyped-def]
                 h[q] = 0.0
             h[IA] = 1.0
             h[IS] = 1.0
-            _update(x, cov, h, ui - (x[IA] + x[IS]), r_u, ph)
+            nu_u = ui - (x[IA] + x[IS])
+            if nu_u * nu_u > p[P_UGATE] * _innov_var(cov, h, r_u):
+                # a step of acceleration (traction or brake notch): it is all acceleration,
+                # the gradient cannot jump; without this a share of it would leak into s
+                cov[IA, IA] += nu_u * nu_u
+            _update(x, cov, h, nu_u, r_u, ph)
             # -- zero-velocity update at standstill (odometer at 0 for standstill_s)
             if m[M_STILL] != 0.0 and not coasting:
                 if abs(ui - x[IS]) > p[P_ZGATE]:
