@@ -318,7 +318,11 @@ def write_output(sim: Simulation, path: str | Path) -> str:
                     "mcap output needs bench.mcaplog.writer.write_emulation, which is not "
                     "installed; write .log or .bin instead"
                 ) from None
-            counts = write_emulation(p, sim, sim.scenario.path or None)
+            from bench.config_choice import scenario_config
+
+            # recorded, so that `bench replay FILE.mcap` uses the board as built
+            config = scenario_config(sim.scenario)
+            counts = write_emulation(p, sim, sim.scenario.path or None, config=config)
             return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {p}"
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
