@@ -11,7 +11,7 @@ The format is documented in docs/ACCEPTANCE.md.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +69,9 @@ class Plan:
     def config(self) -> Config:
         """The calibration for an emulated run: the virtual board as built (true angles,
         sample rate, base id), with the plan's [config] overlay on top."""
-        return build_config(self.scenario, self.config_overlay, self.file)
+        return build_config(
+            self.scenario, self.config_overlay, self.file, f"scenario of plan {self.name}"
+        )
 
     def scenario_toml(self) -> str:
         """The scenario as a TOML file the emulator reads back to the same Scenario."""
@@ -214,8 +216,11 @@ def _check_fault_target(top: Table, where: str, c: CheckSpec, sc: Any) -> None:
         raise top.error(f"{where}.kind", "no scenario fault targets an ADC channel to detect")
 
 
-def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
-    """Scenario calibration (or nominal) with the plan's [config] tables merged on top."""
+def build_config(
+    scenario: Any, overlay: dict[str, Any], source: str, board: str = "the plan's scenario"
+) -> Config:
+    """Scenario calibration (or nominal) with the plan's [config] tables merged on top;
+    ``board`` names the emulated board in the calibration's description."""
     import tomllib as _toml
 
     base: dict[str, Any] = {}
@@ -229,7 +234,13 @@ def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
             merged[key] = {**merged[key], **value}
         else:
             merged[key] = value
-    return config_from_dict(merged, source=f"{source}: config")
+    config = config_from_dict(merged, source=f"{source}: config")  # errors name the plan
+    start = f"{board} as built" if scenario is not None else "nominal ICD values"
+    if overlay:
+        return replace(config, source=f"{start} + [config] of {source}", origin="plan")
+    if scenario is None:
+        return Config()
+    return replace(config, source=start, origin="scenario")
 
 
 def _scenario(top: Table, value: Any, plan_dir: Path | None) -> tuple[Any, dict | None, str | None]:
