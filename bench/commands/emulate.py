@@ -108,9 +108,7 @@ def run(args: argparse.Namespace) -> int:
         write_truth_csv(args.truth, sim.truth)
         print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
     if args.out:
-        from devices.emulator import write_output
-
-        print(write_output(sim, args.out))
+        print(_write_out(sim, args.out))
         if not args.quiet:
             print(sim.summary())
             print(_calibration_note(sc, args.out, args.calibration_out))
@@ -118,6 +116,25 @@ def run(args: argparse.Namespace) -> int:
     if not realtime:
         return 0
     return _play(args, sim)
+
+
+def _write_out(sim: Any, out: str) -> str:
+    """The run as a file; an MCAP records its board's calibration as built, so that
+    `bench replay FILE.mcap` reproduces the emulated run."""
+    from bench.config_choice import is_mcap, scenario_config
+    from devices.emulator import write_output
+
+    if not is_mcap(out):
+        return write_output(sim, out)
+    from bench.mcaplog.writer import write_emulation
+
+    path = Path(out)
+    config = scenario_config(sim.scenario)
+    try:
+        counts = write_emulation(path, sim, sim.scenario.path or None, config=config)
+    except OSError as exc:
+        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {path}"
 
 
 def _calibration_note(sc: Any, out: str, sheet: str | None) -> str:

@@ -318,11 +318,7 @@ def write_output(sim: Simulation, path: str | Path) -> str:
                     "mcap output needs bench.mcaplog.writer.write_emulation, which is not "
                     "installed; write .log or .bin instead"
                 ) from None
-            from bench.config_choice import scenario_config
-
-            # recorded, so that `bench replay FILE.mcap` uses the board as built
-            config = scenario_config(sim.scenario)
-            counts = write_emulation(p, sim, sim.scenario.path or None, config=config)
+            counts = write_emulation(p, sim, sim.scenario.path or None)
             return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {p}"
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
