@@ -52,6 +52,7 @@ class EstimatorSettings:
     accel_psd: float = 0.1  # acceleration random walk, (m/s^2)^2/s
     grade_psd_per_m: float = 1e-9  # g sin(alpha) random walk per metre, (m/s^2)^2/m
     grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m
+    blind_grade_rate_psd_per_m: float = 1e-7  # the same while no odometer frame is accepted
     grade_sigma0_mps2: float = 0.5  # 1-sigma of g sin(alpha) before any information
     grade_rate_sigma0: float = 0.003  # 1-sigma of its rate per metre at the start, (m/s^2)/m
     trend_alpha: float = 0.15  # weight of a frame in the moving mean of normalised innovations

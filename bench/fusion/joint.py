@@ -57,6 +57,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_KJUMP] = s.grade_rate_jump
     p[jk.P_SJUMP] = s.grade_jump_mps2
     p[jk.P_UGATE] = 25.0
+    p[jk.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
     return p
 
 
@@ -87,6 +88,9 @@ class JointFilter:
         self.p = parameters(config)
         self.x, self.cov, self.m = jk.new_state(self.p)
         self.ru = u_variance_factors(geo)
+        # compile or load the kernel now, when the pipeline is built (before acquisition),
+        # not on the first live sample; an empty batch leaves the state as it is
+        self.push(_EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_B, None)
 
     def push(
         self,

@@ -84,7 +84,8 @@ P_TREND_LIMIT = 27  # |moving mean| beyond this: the grade's rate has changed
 P_KJUMP = 28  # 1-sigma added to k then, (m/s^2)/m
 P_SJUMP = 29  # 1-sigma added to s then, m/s^2
 P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
-P_SIZE = 31
+P_QK_BLIND = 31  # k's random walk per metre while no odometer frame is accepted
+P_SIZE = 32
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -145,10 +146,12 @@ def _innov_var(cov, h, r):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def _predict(x, cov, dt, p):  # type: ignore[no-untyped-def]
+def _predict(x, cov, dt, p, blind):  # type: ignore[no-untyped-def]
     """x, P over dt seconds. EKF: s += k v dt is bilinear; F = I + dt (e_v e_a^T + k e_s e_v^T
     + v e_s e_k^T), applied to P's rows then columns in place (row s before row v, which
-    it reads; likewise the columns)."""
+    it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
+    the vertical-curve detector cannot see a curve start: k's process noise per metre is
+    then the one that covers such jumps (P_QK_BLIND)."""
     v, k = x[IV], x[IK]
     kdt, vdt = k * dt, v * dt
     x[IV] = v + x[IA] * dt
@@ -166,7 +169,8 @@ def _predict(x, cov, dt, p):  # type: ignore[no-untyped-def]
     cov[IA, IA] += qa * dt
     d = abs(v) * dt  # metres travelled: the gradient changes only with distance
     if d > 0.0:
-        qs, qk = p[P_QS], p[P_QK]
+        qs = p[P_QS]
+        qk = p[P_QK_BLIND] if blind else p[P_QK]
         cov[IS, IS] += qs * d + qk * d * d * d / 3.0
         cov[IS, IK] += qk * d * d / 2.0
         cov[IK, IS] += qk * d * d / 2.0
@@ -232,7 +236,7 @@ def run(  # type: ignore[no-untyped-def]
             m[M_LAST_B] = bi
         dt = bi - m[M_LAST_B]
         if dt > 0.0:
-            _predict(x, cov, dt, p)
+            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]))
         m[M_LAST_B] = bi
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]
