@@ -1,4 +1,5 @@
-"""Estimator throughput: >= 1 M samples/s in replay batches, well under 0.2 ms per live push.
+"""Estimator throughput: >= 1 M samples/s in replay batches, well under 0.2 ms per live push,
+and the joint filter's compiled kernel alone (``python -m benchmarks.estimator_speed``).
 
 Measured as CPU time of this process (best of a few rounds), so a busy machine slows the
 wall clock but not the verdict. The stream is synthetic (board at 200 Hz, SPEED_REF at
@@ -85,3 +86,43 @@ def test_a_live_push_of_one_sample_takes_well_under_0_2_ms() -> None:
     print(f"estimator, 1-sample pushes: median {median:.0f} us, p99 {p99:.0f} us")
     assert median < 100.0
     assert p99 < 200.0
+
+
+def joint_filter_rate(n: int = 400_000, batch: int = 21845) -> float:
+    """Samples/s through the joint filter's kernel alone (CPU time, best of three)."""
+    from bench.fusion.joint import JointFilter
+    from bench.fusion.least_squares import geometry
+
+    cfg = Config()
+    rng = np.random.default_rng(2)
+    b = np.arange(n) * 0.005
+    u = 0.4 + G0 * 0.01 + 0.01 * rng.standard_normal(n)
+    mask = np.full(n, 7, dtype=np.int64)
+    res = 0.001 * rng.standard_normal(n)
+    latched = np.zeros(n, dtype=np.int8)
+    anchors = np.arange(2, n, 4)
+    speed = 1.0 + 0.4 * b[anchors]
+    best = float("inf")
+    for _ in range(3):
+        f = JointFilter(cfg, geometry(cfg.angles_rad))
+        start = time.process_time()
+        for lo in range(0, n, batch):
+            hi = lo + batch
+            sel = (anchors >= lo) & (anchors < hi)
+            frames = (anchors[sel] - lo, b[anchors[sel]] - 0.002, speed[sel],
+                      np.zeros(sel.sum(), bool), np.zeros(sel.sum(), bool))  # fmt: skip
+            f.push(b[lo:hi], u[lo:hi], mask[lo:hi], res[lo:hi], latched[lo:hi], frames)
+        best = min(best, time.process_time() - start)
+    return n / best
+
+
+def test_the_joint_filter_kernel_runs_at_several_million_samples_per_second() -> None:
+    rate = joint_filter_rate()
+    print(f"joint filter kernel, replay batches: {rate / 1e6:.2f} M samples/s")
+    assert rate >= 2e6
+
+
+if __name__ == "__main__":
+    print(f"joint filter kernel: {joint_filter_rate() / 1e6:.2f} M samples/s")
+    test_replay_batches_run_at_a_million_samples_per_second_or_more()
+    test_a_live_push_of_one_sample_takes_well_under_0_2_ms()

@@ -130,7 +130,7 @@ def test_one_kernel_call_equals_many_one_sample_calls() -> None:
     u = G0 * 0.01 + 0.01 * rng.standard_normal(n)
     mask = np.full(n, 7)
     res = 0.001 * rng.standard_normal(n)
-    latched = np.zeros(n, dtype=bool)
+    latched = np.zeros(n, dtype=np.int8)
     anchors = np.arange(3, n, 4)
     frames = (anchors, b[anchors] - 0.002, 0.5 + 0.0 * b[anchors], anchors == 3, anchors < 0)
     whole = JointFilter(cfg, geo).push(b, u, mask, res, latched, frames)

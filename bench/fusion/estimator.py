@@ -172,14 +172,18 @@ class Estimator:
         return out, events
 
     def _exclusion_starts(self, latched: np.ndarray, reason: np.ndarray) -> np.ndarray:
-        """(N,) an exclusion by the residual starts at this sample ((3, N) latched flags and
-        reasons): the channel's error grew slowly until then and may sit in the gradient."""
+        """(N,) int8: the channel (1..3) whose exclusion by the residual or as stuck starts
+        at this sample, else 0 ((3, N) latched flags and reasons): its error grew slowly
+        until then and may sit in the gradient (the lowest channel when several start)."""
         prev = np.empty_like(latched)
         prev[:, 0] = self._was_latched
         prev[:, 1:] = latched[:, :-1]
         self._was_latched = latched[:, -1].tolist()
-        new = latched & ~prev & (reason == _RESIDUAL)
-        return new[0] | new[1] | new[2]
+        new = latched & ~prev & ((reason == _RESIDUAL) | (reason == _STUCK))
+        out = np.where(new[2], 3, 0).astype(np.int8)
+        np.copyto(out, 2, where=new[1])
+        np.copyto(out, 1, where=new[0])
+        return out
 
     def _push_scalar(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
@@ -222,7 +226,7 @@ class Estimator:
         u_l: list[float] = []
         mask_l: list[int] = []
         res_l: list[float] = []
-        start_l: list[bool] = []
+        start_l: list[int] = []
         was_latched = self._was_latched
         for i, (ticks, t, seq, n, code, present, a, ok) in enumerate(
             zip(ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True)
@@ -245,10 +249,15 @@ class Estimator:
             )
             (l0, l1, l2), ev = latch(ticks, t, n, reason)
             w0, w1, w2 = was_latched
+            slow = (_RESIDUAL, _STUCK)
             start_l.append(
-                (l0 and not w0 and reason[0] == _RESIDUAL)
-                or (l1 and not w1 and reason[1] == _RESIDUAL)
-                or (l2 and not w2 and reason[2] == _RESIDUAL)
+                1
+                if l0 and not w0 and reason[0] in slow
+                else 2
+                if l1 and not w1 and reason[1] in slow
+                else 3
+                if l2 and not w2 and reason[2] in slow
+                else 0
             )
             was_latched = [l0, l1, l2]
             if ev:
@@ -289,7 +298,7 @@ class Estimator:
             np.array(u_l),
             np.array(mask_l, dtype=np.int64),
             np.array(res_l),
-            np.array(start_l, dtype=np.bool_),
+            np.array(start_l, dtype=np.int8),
             frames,
         )
         out = [

@@ -20,6 +20,7 @@ from bench.fusion.least_squares import Geometry
 _EMPTY_F = np.zeros(0)
 _EMPTY_I = np.zeros(0, dtype=np.int64)
 _EMPTY_B = np.zeros(0, dtype=np.bool_)
+_EMPTY_I8 = np.zeros(0, dtype=np.int8)
 
 
 def parameters(config: Config) -> np.ndarray:
@@ -51,13 +52,16 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_LSIG] = s.latency_sigma_s
     p[jk.P_RV_MAX] = s.speed_noise_max_mps**2
     p[jk.P_RV_TAU] = 200.0
-    p[jk.P_EXCL] = s.residual_limit_mps2
+    p[jk.P_RESLOW_TAU] = 1.0
+    p[jk.P_RES_LIMIT] = s.residual_limit_mps2
     p[jk.P_TREND_ALPHA] = s.trend_alpha
     p[jk.P_TREND_LIMIT] = s.trend_limit
     p[jk.P_KJUMP] = s.grade_rate_jump
     p[jk.P_SJUMP] = s.grade_jump_mps2
     p[jk.P_UGATE] = 25.0
     p[jk.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
+    p[jk.P_LEARN] = 100.0
+    p[jk.P_VMIN] = 0.5
     return p
 
 
@@ -70,6 +74,14 @@ def u_variance_factors(geo: Geometry) -> np.ndarray:
         if np.isfinite(row).all():
             out[code] = float(np.dot(row, row))
     return out
+
+
+def exclusion_gains(geo: Geometry) -> np.ndarray:
+    """Per channel k, u's weight over the parity's (three channels): an error e on k moves
+    the residual by e p_k and u by e c_k, so a residual r means c_k / p_k r in u."""
+    cu = geo.pinv_array[7, 0]
+    par = np.asarray(geo.parity)
+    return np.where(np.abs(par) > 0.05, cu / np.where(par == 0, 1.0, par), 0.0)
 
 
 @dataclass(slots=True)
@@ -88,9 +100,10 @@ class JointFilter:
         self.p = parameters(config)
         self.x, self.cov, self.m = jk.new_state(self.p)
         self.ru = u_variance_factors(geo)
+        self.excl_gain = exclusion_gains(geo)
         # compile or load the kernel now, when the pipeline is built (before acquisition),
         # not on the first live sample; an empty batch leaves the state as it is
-        self.push(_EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_B, None)
+        self.push(_EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_I8, None)
 
     def push(
         self,
@@ -101,8 +114,8 @@ class JointFilter:
         latched: np.ndarray,
         frames: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
     ) -> FilterOutput:
-        """b board time (s), u, channel-mask code, parity residual and exclusion starts per
-        sample; frames:
+        """b board time (s), u, channel-mask code, parity residual and the channel (1..3)
+        whose exclusion starts, per sample; frames:
         (anchor index, board time measured, speed m/s, restart, standstill) or None."""
         n = len(b)
         out = FilterOutput(
@@ -117,8 +130,9 @@ class JointFilter:
             np.ascontiguousarray(u, dtype=np.float64),
             np.ascontiguousarray(mask, dtype=np.int64),
             np.ascontiguousarray(residual, dtype=np.float64),
-            np.ascontiguousarray(latched, dtype=np.bool_),
+            np.ascontiguousarray(latched, dtype=np.int8),
             self.ru,
+            self.excl_gain,
             np.ascontiguousarray(fa, dtype=np.int64),
             np.ascontiguousarray(fw, dtype=np.float64),
             np.ascontiguousarray(fs, dtype=np.float64),
@@ -140,7 +154,7 @@ def warm_up() -> None:
         np.array([0.0, 0.0]),
         np.array([7, 7]),
         np.array([0.0, math.nan]),
-        np.array([False, False]),
+        np.array([0, 0], dtype=np.int8),
         (
             np.array([1]),
             np.array([0.0]),

@@ -50,7 +50,8 @@ M_RV = 12  # innovation-based odometer noise variance estimate
 M_LAST_SEEN = 13  # board time of the newest frame measured (applied or rejected)
 M_TREND = 14  # moving mean of the normalised odometer innovations (grade manoeuvres)
 M_TREND_FROM = 15  # board time before which no new manoeuvre is declared
-M_SIZE = 16
+M_RESLOW = 16  # slow mean of the parity residual, m/s^2
+M_SIZE = 17
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -78,14 +79,17 @@ P_LSIG = 21  # initial 1-sigma of the latency, s (0: not estimated)
 P_RV_MAX = 22  # cap of the innovation-based odometer noise variance
 P_RV_TAU = 23  # frames, time constant of that estimate
 P_RV0 = 24  # odometer noise variance assumed at the start, (m/s)^2
-P_EXCL = 25  # 1-sigma added to s when a channel is excluded, m/s^2
+P_RESLOW_TAU = 25  # s, time constant of the residual's slow mean
 P_TREND_ALPHA = 26  # weight of a new frame in that moving mean
 P_TREND_LIMIT = 27  # |moving mean| beyond this: the grade's rate has changed
 P_KJUMP = 28  # 1-sigma added to k then, (m/s^2)/m
 P_SJUMP = 29  # 1-sigma added to s then, m/s^2
 P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
 P_QK_BLIND = 31  # k's random walk per metre while no odometer frame is accepted
-P_SIZE = 32
+P_LEARN = 32  # innovations (nu^2/S) up to this feed the odometer noise estimate
+P_VMIN = 33  # m/s: below this odometer reading, no latency or noise learning
+P_RES_LIMIT = 34  # residual limit, m/s^2 (clip of the residual's statistics)
+P_SIZE = 35
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -201,6 +205,7 @@ def run(  # type: ignore[no-untyped-def]
     residual,
     latched,
     ru_of_mask,
+    excl_gain,
     f_anchor,
     f_when,
     f_speed,
@@ -216,10 +221,9 @@ def run(  # type: ignore[no-untyped-def]
 
     b: board time (s) per sample; u: specific force along the track (NaN without two
     channels); mask: channel-mask code per sample; residual: parity residual (NaN without
-    three channels); latched: an exclusion by the residual starts at this sample: what the
-    channel gave until then may sit in s, so its variance is raised by P_EXCL^2 (the most
-    the residual limit lets through); ru_of_mask: (H^T H)^-1 uu per mask code (inf below
-    two channels).
+    three channels); latched: channel (1..3) whose exclusion by the residual or as stuck
+    starts at this sample, else 0; ru_of_mask: (H^T H)^-1 uu per mask code (inf below two
+    channels); excl_gain: per channel, its u weight over its parity weight.
     Frames: anchor (sample index in this batch that first applies it, non-decreasing),
     board time it was measured, speed m/s, restart (after a long gap), standstill.
     """
@@ -241,6 +245,10 @@ def run(  # type: ignore[no-untyped-def]
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]
         if r_i == r_i:
+            # clipped at the residual limit: a spike must not pass for noise (or, below, for
+            # a slow error), a slow drift stays below the limit until it is excluded
+            lim = p[P_RES_LIMIT]
+            r_i = -lim if r_i < -lim else lim if r_i > lim else r_i
             cnt = m[M_NOISE_N] + 1.0
             m[M_NOISE_N] = cnt
             alpha = 1.0 / cnt
@@ -271,11 +279,15 @@ def run(  # type: ignore[no-untyped-def]
                 h[q] = 0.0
             h[IV] = 1.0
             h[IA] = -lag
-            if p[P_LSIG] > 0.0:
+            # the latency shows only in motion: near standstill the odometer's dead band
+            # (it reads 0 until a whole quantum) would pass for latency
+            moving = abs(z) >= p[P_VMIN]
+            if p[P_LSIG] > 0.0 and moving:
                 h[IL] = -x[IA]
             nu = z - (x[IV] - lag * x[IA])
             s_nu = _innov_var(cov, h, rv)
-            if nu * nu <= p[P_GATE] * s_nu:
+            accepted = nu * nu <= p[P_GATE] * s_nu
+            if accepted:
                 _update(x, cov, h, nu, rv, ph)
                 m[M_LAST_FRAME] = when
                 m[M_STREAK_T0] = math.nan
@@ -292,12 +304,15 @@ def run(  # type: ignore[no-untyped-def]
                     cov[IS, IS] += p[P_SJUMP] * p[P_SJUMP]
                     m[M_TREND] = 0.0
                     m[M_TREND_FROM] = when + 0.5
-                # odometer noise from accepted innovations (vibration, coarse quantisation)
+            # odometer noise from the innovations within P_LEARN (vibration, coarse
+            # quantisation): rejected ones too, or a gate set too tight would never widen;
+            # a slide's frames soon pass P_LEARN and stay out
+            if moving and nu * nu <= p[P_LEARN] * s_nu:
                 e2 = nu * nu - (s_nu - rv)
                 m[M_RV] += (e2 - m[M_RV]) / p[P_RV_TAU]
                 if m[M_RV] > p[P_RV_MAX]:
                     m[M_RV] = p[P_RV_MAX]
-            else:
+            if not accepted:
                 m[M_SUSPECT] = 1.0
                 m[M_OK_SINCE] = math.nan
                 t0 = m[M_STREAK_T0]
@@ -324,8 +339,15 @@ def run(  # type: ignore[no-untyped-def]
                             m[M_LAST_FRAME] = when
             j += 1
         coasting = not (bi - m[M_LAST_SEEN] <= p[P_COAST])
-        if latched[i]:
-            cov[IS, IS] += p[P_EXCL] * p[P_EXCL]
+        if latched[i] > 0:
+            # an exclusion by the residual or a stuck code: the channel's error grew until
+            # now and its slow part went into s. Its size is the residual's slow mean over
+            # the channel's parity weight; its share of u, that times the u weight
+            leak = m[M_RESLOW] * excl_gain[latched[i] - 1]
+            x[IS] -= leak
+            cov[IS, IS] += 0.25 * leak * leak
+        if r_i == r_i and dt > 0.0:
+            m[M_RESLOW] += dt / p[P_RESLOW_TAU] * (r_i - m[M_RESLOW])
         # -- specific force along the track: u = a + s
         ui = u[i]
         have_u = ui == ui
