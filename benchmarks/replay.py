@@ -52,7 +52,7 @@ def mcap_iterate(path: Path, topic: str) -> int:
 def bench_replay(path: Path, csv: Path | None = None) -> Any:
     """The bench's replay path, as `bench replay` runs it (collect=False, no summary)."""
     from bench.config import Config
-    from bench.replay import CsvSink, replay
+    from bench.replay.run import CsvSink, replay
     from devices.files import open_log
 
     source = open_log(path)
@@ -79,7 +79,7 @@ def read_only(path: Path) -> int:
 def pipeline_only(frames: Any, batch: int = 65536) -> int:
     """The pipeline alone on frames already in memory, in replay's batch size."""
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())
@@ -91,7 +91,7 @@ def pipeline_only(frames: Any, batch: int = 65536) -> int:
 
 def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())

@@ -11,9 +11,9 @@ import argparse
 
 import can
 
-from bench.errors import BenchError
 from devices.base import LiveSource
 from devices.bus import FORBIDDEN_INTERFACES, CanBusSource
+from devices.errors import BenchError
 from devices.serial_port import DEFAULT_BAUD, SerialSource
 
 INTERFACES = sorted(set(can.VALID_INTERFACES) - FORBIDDEN_INTERFACES)

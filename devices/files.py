@@ -3,7 +3,7 @@
 * ``.log``  candump ``-L`` text, the fast vectorised reader (:mod:`devices.candump`)
 * ``.asc`` ``.blf`` ``.trc`` ``.csv``  python-can's LogReader, batched
 * ``.bin``  raw UART capture (COBS packets), ``t`` = NaN (the UART carries no time)
-* ``.mcap`` the bench's own recordings (:mod:`devices.mcap_file`, imported lazily)
+* ``.mcap`` the bench's own recordings (:mod:`bench.mcaplog.source`, imported lazily)
 
 Operator mistakes (missing file, unknown extension, unreadable or not-a-log file) are one
 :class:`BenchError` line at open time; corruption found while reading ends the stream
@@ -27,10 +27,10 @@ import can
 import numpy as np
 from can.io.blf import OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
 
-from bench.errors import BenchError
 from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
 from devices.candump import CandumpFileSource
+from devices.errors import BenchError
 from protocol.frames import empty_frames
 from protocol.uart import MAX_BODY, deframe_bytes
 
@@ -74,12 +74,12 @@ def open_log(path: str | os.PathLike[str], **kwargs: Any) -> FileSource:
 
 def _open_mcap(path: Path, **kwargs: Any) -> FileSource:
     try:
-        module = importlib.import_module("devices.mcap_file")
+        module = importlib.import_module("bench.mcaplog.source")
     except ModuleNotFoundError as exc:
-        if exc.name not in ("devices.mcap_file", "devices"):
+        if exc.name not in ("bench.mcaplog.source", "devices"):
             raise BenchError(f"cannot read {path}: missing dependency {exc.name}") from exc
         raise BenchError(
-            f"cannot read {path}: MCAP support (devices.mcap_file) is missing"
+            f"cannot read {path}: MCAP support (bench.mcaplog.source) is missing"
         ) from exc
     try:
         return module.McapFrameSource(path, **kwargs)

@@ -17,8 +17,8 @@ from bench.acceptance.checks import (
     overall,
     run_check,
 )
-from bench.events import EventKind, concat_events, make_events
-from bench.results import RESULT_DTYPE
+from bench.records.events import EventKind, concat_events, make_events
+from bench.records.results import RESULT_DTYPE
 
 RATE = 100.0
 N_REF = 250  # the first sample's counter: k = n - 250

@@ -173,7 +173,7 @@ def test_mcap_without_its_reader_is_bench_error(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n")
-    monkeypatch.setitem(sys.modules, "devices.mcap_file", None)  # import fails
+    monkeypatch.setitem(sys.modules, "bench.mcaplog.source", None)  # import fails
     with pytest.raises(BenchError) as e:
         open_log(tmp_path / "x.mcap")
     assert "mcap" in one_line_error(e).lower()

@@ -24,8 +24,8 @@ import can
 import pytest
 
 from bench.config import Config
-from bench.events import EventKind
-from bench.live import LiveRunner
+from bench.live.runner import LiveRunner
+from bench.records.events import EventKind
 from devices.emulator import PtyPlayer, scenario_from_dict, simulate, start_virtual_board
 
 _ids = itertools.count(1)

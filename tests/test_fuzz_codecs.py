@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from bench.config import Config
 from bench.errors import BenchError
-from bench.pipeline import Pipeline
+from bench.pipeline.steps import Pipeline
 from devices.base import SourceBatch
 from protocol.crc import frame_crc8_batch
 from protocol.frames import FRAME_DTYPE
@@ -125,7 +125,7 @@ def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 
 def _read_all(path: Path) -> Any:
     from bench.mcaplog.reader import McapLog
-    from bench.replay import replay
+    from bench.replay.run import replay
     from devices.files import open_log
 
     try:

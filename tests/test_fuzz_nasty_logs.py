@@ -66,7 +66,7 @@ def _reseal(frames: np.ndarray) -> np.ndarray:
 def _mcap_bytes(tmp: Path, frames: np.ndarray) -> bytes:
     from bench.config import Config
     from bench.mcaplog.writer import McapSink
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     path = tmp / "src.mcap"
@@ -279,7 +279,7 @@ def test_noise_warnings_are_bounded(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
     """A single absurd receive time mid-log costs at most the samples around it."""
     from bench.config import Config
-    from bench.replay import replay
+    from bench.replay.run import replay
     from devices.files import open_log
     from devices.writers import write_candump
 
@@ -298,7 +298,7 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
 
 def replay_count(frames: np.ndarray, path: Path) -> int:
     from bench.config import Config
-    from bench.replay import replay
+    from bench.replay.run import replay
     from devices.files import open_log
     from devices.writers import write_candump
 

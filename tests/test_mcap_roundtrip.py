@@ -32,10 +32,10 @@ from bench.mcaplog.reader import (
     read_topic,
     recorded_config,
 )
+from bench.mcaplog.source import McapFrameSource
 from bench.mcaplog.writer import McapSink, write_emulation
-from bench.pipeline import StepOutput
+from bench.pipeline.steps import StepOutput
 from devices.base import SourceBatch
-from devices.mcap_file import McapFrameSource
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import Outcome
 from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
-from bench.pipeline import Pipeline, StepOutput
-from bench.results import RESULT_DTYPE, CsvWriter
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import RESULT_DTYPE, CsvWriter
 from devices.base import SourceBatch, SourceNotice
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE

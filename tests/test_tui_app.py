@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.live import LiveRunner
-from bench.liveopts import LiveSetup
-from bench.replay import replay
+from bench.live.runner import LiveRunner
+from bench.live.setup import LiveSetup
+from bench.replay.run import replay
 from bench.tui.app import BenchApp, next_tolerance
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.session import Session

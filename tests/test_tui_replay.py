@@ -1,6 +1,6 @@
 """Replay in the TUI: ReplaySource pacing, flow control, pause/step, run-to-next-failure, and
 the replay keys driving it. Expectations come from the frames themselves (their receive
-times, the instant the fault starts) and from a plain bench.replay of the same log."""
+times, the instant the fault starts) and from a plain bench.replay.run of the same log."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import time
 import numpy as np
 
 from bench.config import Config
-from bench.live import LiveRunner
-from bench.liveopts import LiveSetup
-from bench.replay import replay
+from bench.live.runner import LiveRunner
+from bench.live.setup import LiveSetup
+from bench.replay.run import replay
 from bench.tui.app import BenchApp
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.replay_source import ReplaySource, ReplayTap

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.live import Snapshot
+from bench.live.runner import Snapshot
 from bench.tui.app import BenchApp
 from bench.tui.session import Session
 from protocol.layout import STATUS_SELFTEST

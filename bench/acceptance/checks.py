@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.events import EventKind
+from bench.records.events import EventKind
 
 VERDICTS = ("pass", "warn", "fail", "error", "skip")
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from bench import __version__
 from bench.acceptance.checks import ESTIMATORS, KINDS, VERDICTS, Measurement, RunData
-from bench.events import EventKind
+from bench.records.events import EventKind
 
 if TYPE_CHECKING:
     from bench.acceptance.runner import Outcome

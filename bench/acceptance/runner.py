@@ -3,7 +3,7 @@
 Three ways to run a plan, one measuring path:
 
 * emulated (default for a plan with a scenario): simulate the scenario, push its frames
-  through the same Pipeline a live run uses as fast as possible (bench.replay.run_steps),
+  through the same Pipeline a live run uses as fast as possible (bench.replay.run.run_steps),
   with the MCAP sink writing DIR/run.mcap. Deterministic; no wall clock involved.
 * realtime (``--realtime``): the same scenario played by the in-process virtual board on
   python-can's virtual bus, received by LiveRunner -- the live path end to end.
@@ -45,10 +45,10 @@ from bench.acceptance.checks import (
 from bench.acceptance.plan import Plan, Step
 from bench.config import Config, load_config
 from bench.errors import BenchError, ConfigError
-from bench.events import EVENT_DTYPE, concat_events
-from bench.pipeline import Pipeline, StepOutput
-from bench.replay import run_steps
-from bench.results import RESULT_DTYPE
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.events import EVENT_DTYPE, concat_events
+from bench.records.results import RESULT_DTYPE
+from bench.replay.run import run_steps
 from devices.base import SourceBatch
 
 SILENCE_S = 10.0
@@ -466,8 +466,8 @@ def _run_live(
     plan: Plan, config: Config, opts: Options, info: dict[str, Any], setup: Any, mode: str
 ) -> tuple[RunData, str]:
     """LiveRunner on an open source; operator steps in this thread; stop when done."""
-    from bench.live import LiveRunner
-    from bench.liveopts import run_metadata
+    from bench.live.runner import LiveRunner
+    from bench.live.setup import run_metadata
     from bench.mcaplog.writer import McapSink
 
     player = setup.emulator
@@ -605,7 +605,7 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
 
     Operator mistakes found before the run starts (no source, bad config, no way to answer
     the steps) raise BenchError; anything after that is verdict "error" in the record."""
-    from bench.liveopts import open_emulator, open_live
+    from bench.live.setup import open_emulator, open_live
 
     out = prepare_out_dir(opts.out_dir)
     config = run_config(plan, opts.config_path)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import devices
 from bench.config import Config, config_from_dict, load_config
-from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments
+from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
 
 DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.toml"
 
@@ -54,8 +54,8 @@ def scenario_config(path: Path) -> Config:
 
 def run(args: argparse.Namespace) -> int:
     from bench.commands.tui import show
-    from bench.engine import start_engine
-    from bench.engine_plans import EmulatorPlan, cli_values
+    from bench.engine.client import start_engine
+    from bench.engine.plans import EmulatorPlan, cli_values
     from devices.emulator.scenario import resolve_scenario_path
 
     path = resolve_scenario_path(args.scenario)

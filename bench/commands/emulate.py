@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _play(args: argparse.Namespace, sim: Any) -> int:
-    from bench.cpu_placement import other_cpus
+    from devices.cpu_placement import other_cpus
     from devices.emulator import CanPlayer, PtyPlayer
 
     # a board in a process of its own is not part of any bench's live path: it keeps off

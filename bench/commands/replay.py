@@ -17,8 +17,8 @@ from rich.progress import (
 
 from bench.config import load_config
 from bench.errors import BenchError
-from bench.replay import CsvSink, replay
-from bench.summary import print_summary
+from bench.replay.run import CsvSink, replay
+from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""

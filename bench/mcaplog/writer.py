@@ -62,12 +62,12 @@ from mcap.records import (
 )
 
 from bench import __version__
-from bench.arrays import concat_records as _concat
 from bench.config import Config
-from bench.events import EVENT_DTYPE, EventKind, describe, make_events, severity
 from bench.mcaplog import schemas as S
-from bench.pipeline import StepOutput
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
+from bench.pipeline.steps import StepOutput
+from bench.records.arrays import concat_records as _concat
+from bench.records.events import EVENT_DTYPE, EventKind, describe, make_events, severity
 from devices.base import SourceBatch
 from protocol.batch import decode_batch
 from protocol.frames import FRAME_DTYPE, frames_from_raw
@@ -947,7 +947,7 @@ class QueuedSink:
 
 
 class McapSink(QueuedSink):
-    """The MCAP sink of a live run (implements bench.sinks.Sink).
+    """The MCAP sink of a live run (implements bench.sinks.base.Sink).
 
     ``write`` only enqueues (bounded queue; a full queue drops the step and counts its
     frames in ``dropped``, it never blocks acquisition). A writer thread encodes, closes a

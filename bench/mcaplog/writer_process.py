@@ -37,9 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.arrays import concat_records
 from bench.config import Config
-from bench.cpu_placement import other_cpus, pin_thread, yield_cpu
 from bench.mcaplog.writer import (
     _MAX_GROUP,
     _STOP,
@@ -48,8 +46,10 @@ from bench.mcaplog.writer import (
     McapSink,
     QueuedSink,
 )
-from bench.pipeline import StepOutput
+from bench.pipeline.steps import StepOutput
+from bench.records.arrays import concat_records
 from devices.base import SourceBatch
+from devices.cpu_placement import other_cpus, pin_thread, yield_cpu
 
 log = logging.getLogger("bench.mcaplog")
 

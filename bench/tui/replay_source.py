@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.events import EventKind, describe
-from bench.pipeline import StepOutput
+from bench.pipeline.steps import StepOutput
+from bench.records.events import EventKind, describe
 from devices.base import FileSource, LiveSource, SourceBatch
 
 SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)

@@ -4,7 +4,7 @@ The App only ever calls these methods and :meth:`Session.snapshot`; it never tou
 runner's threads. Building a Session (which source, which log file) is the commands' job,
 so the App can be tested with a fixed snapshot and no runner at all. A live ``bench tui`` or
 ``bench demo`` builds its Session in the engine process and the App drives it through
-:class:`bench.engine.EngineSession`, which has this same API.
+:class:`bench.engine.client.EngineSession`, which has this same API.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from bench.config import Config
-from bench.live import HISTORY, LiveRunner, Snapshot
-from bench.liveopts import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
-from bench.pipeline import StepOutput
-from bench.sinks import Sink
+from bench.live.runner import HISTORY, LiveRunner, Snapshot
+from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
+from bench.pipeline.steps import StepOutput
+from bench.sinks.base import Sink
 from bench.tui.replay_source import ReplaySource, ReplayTap
 
 if TYPE_CHECKING:
-    from bench.engine import EngineSession
+    from bench.engine.client import EngineSession
 
 
 class Recorder:
@@ -313,7 +313,7 @@ def replay_setup(
 
 def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
     """Start the session, run the App in this terminal, and always stop the session (a live
-    one runs in the engine process, :mod:`bench.engine`; the App cannot tell). Even a
+    one runs in the engine process, :mod:`bench.engine.client`; the App cannot tell). Even a
     Ctrl-C while Textual is still being imported stops the session."""
     try:
         from bench.tui.app import BenchApp

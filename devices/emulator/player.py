@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.cpu_placement import live_cpus, pin_thread
-from bench.errors import BenchError
+from devices.cpu_placement import live_cpus, pin_thread
 from devices.emulator.scenario import Scenario, load_scenario
 from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
+from devices.errors import BenchError
 
 
 class _PacedPlayer(threading.Thread):
@@ -276,7 +276,7 @@ def start_virtual_board(
     """
     sim = _as_simulation(scenario)
     # python-can's virtual bus is in-process: this board shares the GIL with the bench that
-    # listens, so it runs on the live path's CPU (bench.cpu_placement)
+    # listens, so it runs on the live path's CPU (devices.cpu_placement)
     bus = _open_virtual(channel_name)
     player = CanPlayer(sim, bus, speed=speed, own_bus=True, cpus=live_cpus())
     if start:

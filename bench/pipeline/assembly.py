@@ -31,7 +31,7 @@ import math
 
 import numpy as np
 
-from bench.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from protocol.batch import DecodedBatch
 from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
 

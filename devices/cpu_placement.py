@@ -20,7 +20,7 @@ import logging
 import os
 import threading
 
-from bench.errors import BenchError
+from devices.errors import BenchError
 
 LIVE_CPU_ENV = "BENCH_LIVE_CPU"
 log = logging.getLogger("bench.cpu")

@@ -8,10 +8,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.config import Config
-from bench.pipeline import Pipeline, StepOutput
-from bench.prefetch import prefetch
-from bench.results import RESULT_DTYPE
-from bench.sinks import Sink
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import RESULT_DTYPE
+from bench.replay.prefetch import prefetch
+from bench.sinks.base import Sink
 from devices.base import FileSource, SourceBatch
 
 
@@ -40,7 +40,7 @@ def replay(
 ) -> ReplayOutcome:
     """Run a log through a fresh Pipeline, feeding each step to the sinks.
 
-    The source is read a few batches ahead in a thread of its own (bench.prefetch)."""
+    The source is read a few batches ahead in a thread of its own (bench.replay.prefetch)."""
     pipeline = Pipeline(config)
     sinks = list(sinks)
     parts: list[np.ndarray] = []
@@ -59,10 +59,10 @@ def replay(
 
 
 class CsvSink:
-    """Adapts bench.results.CsvWriter to the Sink contract."""
+    """Adapts bench.records.results.CsvWriter to the Sink contract."""
 
     def __init__(self, path: str) -> None:
-        from bench.results import CsvWriter
+        from bench.records.results import CsvWriter
 
         self._writer = CsvWriter(path)
 

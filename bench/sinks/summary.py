@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.console import Console
 from rich.table import Table
 
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
 
 
 def summary_table(stats: Stats, title: str = "summary") -> Table:

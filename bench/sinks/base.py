@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from bench.pipeline import StepOutput
+from bench.pipeline.steps import StepOutput
 
 
 class Sink(Protocol):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from bench.events import EventKind
+from bench.records.events import EventKind
 from protocol.batch import SCALAR_MAX, DecodedBatch
 
 _FEW = SCALAR_MAX

@@ -2,8 +2,8 @@
 
 A plan travels to the child process (pickled: plain values and module-level classes only)
 and builds the session there with the same builders the commands always used
-(:func:`bench.liveopts.open_live`, :func:`~bench.liveopts.open_emulator`,
-:func:`~bench.liveopts.open_recording`, :func:`bench.tui.session.live_session`), so there is
+(:func:`bench.live.setup.open_live`, :func:`~bench.live.setup.open_emulator`,
+:func:`~bench.live.setup.open_recording`, :func:`bench.tui.session.live_session`), so there is
 one way to build a live session whichever process it runs in.
 """
 
@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bench.config import Config
-from bench.liveopts import DEFAULT_LOG_DIR, LiveSetup
+from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup
 
 
 @dataclass(kw_only=True)
@@ -74,12 +74,12 @@ class LivePlan(EnginePlan):
     args: argparse.Namespace
 
     def open_setup(self) -> LiveSetup:
-        from bench.liveopts import open_live
+        from bench.live.setup import open_live
 
         return open_live(self.args)
 
     def open_first(self, setup: LiveSetup, warn: Callable[[str], None]) -> Any:
-        from bench.liveopts import open_recording
+        from bench.live.setup import open_recording
 
         return open_recording(self.args, setup, self.config, warn=warn)
 
@@ -92,7 +92,7 @@ class EmulatorPlan(LivePlan):
     speed: float = 1.0
 
     def open_setup(self) -> LiveSetup:
-        from bench.liveopts import open_emulator
+        from bench.live.setup import open_emulator
 
         return open_emulator(self.scenario, speed=self.speed)
 
@@ -129,7 +129,7 @@ class BoardPlan(EnginePlan):
         return LiveSetup(source, self.description, "engine-board")
 
     def open_first(self, setup: LiveSetup, warn: Callable[[str], None]) -> Any:
-        from bench.liveopts import start_recording
+        from bench.live.setup import start_recording
 
         return start_recording(self.mcap, setup, self.config) if self.mcap is not None else None
 

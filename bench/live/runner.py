@@ -18,15 +18,15 @@ from typing import Any
 
 import numpy as np
 
-from bench.arrays import concat_records
 from bench.config import Config
-from bench.cpu_placement import live_cpus, pin_thread
-from bench.events import EventKind, describe, make_events
-from bench.pipeline import Pipeline, StepOutput
-from bench.results import RESULT_DTYPE
-from bench.sinks import Sink
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.arrays import concat_records
+from bench.records.events import EventKind, describe, make_events
+from bench.records.results import RESULT_DTYPE
+from bench.sinks.base import Sink
 from devices.base import LiveSource, SourceBatch
+from devices.cpu_placement import live_cpus, pin_thread
 
 MAX_COALESCE = 512
 """Queued source batches merged into one pipeline step at most."""

@@ -7,7 +7,7 @@ in-process board, the LiveRunner and the MCAP writer keep a GIL of their own.
 
 :func:`start_engine` starts the engine ("spawn": the parent has threads, and python-can's
 virtual bus only connects buses inside one process, so board and source both live there)
-from a plan (:mod:`bench.engine_plans`) and returns an :class:`EngineSession`, which offers
+from a plan (:mod:`bench.engine.plans`) and returns an :class:`EngineSession`, which offers
 the App exactly the API of :class:`bench.tui.session.Session`. Snapshots bring only the
 results new since the last one; the history ring is kept here.
 """
@@ -30,12 +30,12 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
-from bench.cpu_placement import other_cpus, pin_thread, restore_thread
-from bench.engine_child import SIGNALS, EngineReport, child_main
-from bench.engine_plans import EnginePlan
-from bench.live import HISTORY, ResultRing, Snapshot
-from bench.results import RESULT_DTYPE
-from bench.stats import Stats
+from bench.engine.child import SIGNALS, EngineReport, child_main
+from bench.engine.plans import EnginePlan
+from bench.live.runner import HISTORY, ResultRing, Snapshot
+from bench.pipeline.stats import Stats
+from bench.records.results import RESULT_DTYPE
+from devices.cpu_placement import other_cpus, pin_thread, restore_thread
 
 READY_TIMEOUT_S = 300.0
 """Building can simulate a whole scenario (the demo's 10 min at 1 kHz) before it is ready."""

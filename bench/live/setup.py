@@ -19,9 +19,9 @@ from typing import Any
 
 from bench import __version__
 from bench.config import Config
-from bench.cpu_placement import live_cpu_label, live_cpus
 from bench.errors import BenchError
 from devices.base import LiveSource
+from devices.cpu_placement import live_cpu_label, live_cpus
 
 DEFAULT_LOG_DIR = Path("logs")
 _emu_ids = itertools.count(1)

@@ -10,7 +10,7 @@ import math
 from collections.abc import Iterable
 from typing import Any
 
-from bench.errors import ConfigError
+from devices.errors import ConfigError
 
 _TYPE_NAMES = {
     bool: "boolean",

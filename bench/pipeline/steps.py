@@ -1,6 +1,6 @@
 """The pipeline: source batches in, samples, results and events out. One for live and replay.
 
-decode (protocol.batch) -> assemble (bench.assembly) -> reference fusion + estimator.
+decode (protocol.batch) -> assemble (bench.pipeline.assembly) -> reference fusion + estimator.
 Stateful across batches, and its output does not depend on how the stream is batched,
 so a live run and the replay of its log give the same rows bit for bit.
 
@@ -16,14 +16,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.assembly import NO_SAMPLES, SAMPLE_DTYPE, Assembler, usable
 from bench.config import Config
-from bench.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
-from bench.records import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
-from bench.results import RESULT_DTYPE
-from bench.stats import Stats
+from bench.pipeline.assembly import NO_SAMPLES, SAMPLE_DTYPE, Assembler, usable
+from bench.pipeline.stats import Stats
+from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
+from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.results import RESULT_DTYPE
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames

@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 
-from bench.arrays import concat_records
-from bench.engine_plans import EnginePlan
-from bench.live import HISTORY
-from bench.pipeline import StepOutput
-from bench.results import RESULT_DTYPE
+from bench.engine.plans import EnginePlan
+from bench.live.runner import HISTORY
+from bench.pipeline.steps import StepOutput
+from bench.records.arrays import concat_records
+from bench.records.results import RESULT_DTYPE
 
 SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from bench.errors import ConfigError
+from devices.errors import ConfigError
 
 
 def read_text_file(path: Path, what: str) -> str:
