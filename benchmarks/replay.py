@@ -3,7 +3,7 @@
 All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
 
 * The bench figure is the whole ``bench replay`` path without CSV text:
-  ``replay(open_log(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
+  ``replay(open_replay(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
   statistics. With a CSV file it is reported separately (``replay candump + CSV``).
 * The anchor for .log and .blf is python-can's bare iteration, nothing else:
   ``for msg in can.LogReader(path): pass``.
@@ -53,9 +53,9 @@ def bench_replay(path: Path, csv: Path | None = None) -> Any:
     """The bench's replay path, as `bench replay` runs it (collect=False, no summary)."""
     from bench.config import Config
     from bench.replay.run import CsvSink, replay
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
-    source = open_log(path)
+    source = open_replay(path)
     sinks = [CsvSink(str(csv))] if csv is not None else []
     try:
         return replay(source, Config(), sinks, collect=False)
@@ -66,10 +66,10 @@ def bench_replay(path: Path, csv: Path | None = None) -> Any:
 
 
 def read_only(path: Path) -> int:
-    """The bench's reader alone: open_log(path).batches() (what replay feeds the pipeline)."""
-    from devices.files import open_log
+    """The bench's reader alone: open_replay(path).batches() (what replay feeds the pipeline)."""
+    from bench.replay.sources import open_replay
 
-    source = open_log(path)
+    source = open_replay(path)
     try:
         return sum(len(b.frames) for b in source.batches(65536))
     finally:
@@ -258,7 +258,9 @@ def measure(
         ):
             dt, n = timed(lambda p=path: read_only(p), repeat)
             figures.append(
-                Figure(key, label, n / dt, "frames/s", detail=f"open_log().batches(): {n} frames")
+                Figure(
+                    key, label, n / dt, "frames/s", detail=f"open_replay().batches(): {n} frames"
+                )
             )
         dt, n = timed(lambda: pipeline_only(frames), repeat)
         figures.append(

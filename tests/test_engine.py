@@ -118,7 +118,7 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
     """Snapshots bring only new rows; put together here they must be what the pipeline
     computes from the frames in the engine's log (replayed on its own)."""
     from bench.replay.run import replay
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     plan = board_plan(tmp_path, seconds=6.0, speed=3.0)
     session = engine(plan)
@@ -130,7 +130,7 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
     shown = session.snapshot(last=50_000)
     session.stop()
     assert drained["sent"] == session.report.frames_received > 0
-    expected = replay(open_log(plan.mcap), CONFIG).results
+    expected = replay(open_replay(plan.mcap), CONFIG).results
     assert 0 < len(shown.results) <= len(expected)
     assert shown.results.tobytes() == expected[: len(shown.results)].tobytes()
     assert session.recorder.files == [plan.mcap] and complete(plan.mcap)

@@ -692,11 +692,11 @@ def remeasure(outcome: Outcome, mcap_path: Path | None = None) -> list[Measureme
 
     What the log cannot hold (emulator truth, fault record, frames sent, step windows) is
     taken from the original run; samples, events and frame counts come from the file."""
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     assert outcome.run is not None
     path = mcap_path or outcome.files["mcap"]
-    source = open_log(path)
+    source = open_replay(path)
     collector = Collector()
     pipeline = Pipeline(outcome.config)
     try:

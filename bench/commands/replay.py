@@ -51,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     console = Console(stderr=True)
     config = load_config(args.config)
@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
             config = recorded
             if not args.quiet:
                 console.print(f"using the config recorded in the log ({recorded.source})")
-    source = open_log(args.input)
+    source = open_replay(args.input)
     sinks = []
     if args.csv:
         sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]

@@ -23,7 +23,7 @@ class McapFrameSource(FileSource):
         """``batching``: "merge" (default, fast: chunks merged into large batches; the
         pipeline's output does not depend on batching) or "recorded" (the live run's own
         batches, for forensic exactness). Other options are meant for other file kinds
-        (devices.files.open_log passes them all) and do not apply here."""
+        (bench.replay.sources.open_replay passes them all) and do not apply here."""
         if batching not in ("merge", "recorded"):
             raise ValueError(f"batching must be 'merge' or 'recorded', not {batching!r}")
         self.batching = batching

@@ -298,11 +298,11 @@ def replay_setup(
     path: str | Path, config: Config, *, speed: float | None = 1.0, paused: bool = False
 ) -> LiveSetup:
     """A LiveSetup whose source plays the log ``path`` (see :class:`ReplaySource`)."""
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     p = Path(path)
     source = ReplaySource(
-        open_log(p),
+        open_replay(p),
         speed=speed,
         paused=paused,
         step_s=1.0 / config.sample_rate_hz,
