@@ -148,8 +148,8 @@ def _session(tmp_path: Path, channel: str) -> tuple[Any, Any, Any]:
     import can
 
     from bench.config import Config
+    from bench.live.session import live_session
     from bench.live.setup import LiveSetup, start_recording
-    from bench.tui.session import live_session
     from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, start_virtual_board
 

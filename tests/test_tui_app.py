@@ -17,11 +17,11 @@ import pytest
 
 from bench.config import Config
 from bench.live.runner import LiveRunner
+from bench.live.session import Session
 from bench.live.setup import LiveSetup
 from bench.replay.run import replay
 from bench.tui.app import BenchApp, next_tolerance
 from bench.tui.panels.pairs import PairsPanel
-from bench.tui.session import Session
 from tests.test_tui_support import (
     FakeSink,
     ListFile,

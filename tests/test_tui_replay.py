@@ -11,12 +11,12 @@ import numpy as np
 
 from bench.config import Config
 from bench.live.runner import LiveRunner
+from bench.live.session import Session, wait_until
 from bench.live.setup import LiveSetup
+from bench.replay.player import ReplaySource, ReplayTap
 from bench.replay.run import replay
 from bench.tui.app import BenchApp
 from bench.tui.panels.pairs import PairsPanel
-from bench.tui.replay_source import ReplaySource, ReplayTap
-from bench.tui.session import Session, wait_until
 from tests.test_tui_app import SIZE, wait_for
 from tests.test_tui_support import ListFile, make_frames, screen_text
 

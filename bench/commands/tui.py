@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
 def show(session: Any) -> int:
     """The screen on a built session; the logs written are listed however it ends."""
-    from bench.tui.session import run_tui
+    from bench.live.session import run_tui
 
     try:
         return run_tui(session)
@@ -69,7 +69,7 @@ def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
 
 def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     """A log replayed in this process (no latency to keep there)."""
-    from bench.tui.session import live_session, replay_setup
+    from bench.live.session import live_session, replay_setup
 
     given = [
         opt

@@ -8,7 +8,7 @@ in-process board, the LiveRunner and the MCAP writer keep a GIL of their own.
 :func:`start_engine` starts the engine ("spawn": the parent has threads, and python-can's
 virtual bus only connects buses inside one process, so board and source both live there)
 from a plan (:mod:`bench.engine.plans`) and returns an :class:`EngineSession`, which offers
-the App exactly the API of :class:`bench.tui.session.Session`. Snapshots bring only the
+the App exactly the API of :class:`bench.live.session.Session`. Snapshots bring only the
 results new since the last one; the history ring is kept here.
 """
 

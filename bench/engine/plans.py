@@ -3,7 +3,7 @@
 A plan travels to the child process (pickled: plain values and module-level classes only)
 and builds the session there with the same builders the commands always used
 (:func:`bench.live.setup.open_live`, :func:`~bench.live.setup.open_emulator`,
-:func:`~bench.live.setup.open_recording`, :func:`bench.tui.session.live_session`), so there is
+:func:`~bench.live.setup.open_recording`, :func:`bench.live.session.live_session`), so there is
 one way to build a live session whichever process it runs in.
 """
 
@@ -41,7 +41,7 @@ class EnginePlan:
 
     def build(self, warn: Callable[[str], None]) -> Any:
         """The session (not started); closes the source again if the recording fails."""
-        from bench.tui.session import live_session
+        from bench.live.session import live_session
 
         setup = self.open_setup()
         try:

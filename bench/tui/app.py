@@ -29,6 +29,8 @@ from textual.widgets import Footer, Static
 
 from bench.errors import BenchError
 from bench.live.runner import HISTORY, Snapshot
+from bench.live.session import Session
+from bench.replay.player import ReplayStatus, speed_label
 from bench.tui.messages import SessionStopped, SnapshotReady
 from bench.tui.panels import duration_text
 from bench.tui.panels.board import BoardPanel
@@ -44,8 +46,6 @@ from bench.tui.panels.plot import (
     render_plot,
 )
 from bench.tui.panels.recording import RecordingPanel
-from bench.tui.replay_source import ReplayStatus, speed_label
-from bench.tui.session import Session
 
 TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 """What + and - step through (per mille): fine where the vote is touchy, coarse above."""

@@ -21,8 +21,8 @@ from bench.config import Config
 from bench.live.runner import HISTORY, LiveRunner, Snapshot
 from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
 from bench.pipeline.steps import StepOutput
+from bench.replay.player import ReplaySource, ReplayTap
 from bench.sinks.base import Sink
-from bench.tui.replay_source import ReplaySource, ReplayTap
 
 if TYPE_CHECKING:
     from bench.engine.client import EngineSession
