@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
 
 def show(session: Any) -> int:
     """The screen on a built session; the logs written are listed however it ends."""
-    from bench.live.session import run_tui
+    from bench.tui.run import run_tui
 
     try:
         return run_tui(session)

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from bench.config import Config
 from bench.live.runner import HISTORY, LiveRunner, Snapshot
@@ -23,9 +23,6 @@ from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start
 from bench.pipeline.steps import StepOutput
 from bench.replay.player import ReplaySource, ReplayTap
 from bench.sinks.base import Sink
-
-if TYPE_CHECKING:
-    from bench.engine.client import EngineSession
 
 
 class Recorder:
@@ -309,18 +306,3 @@ def replay_setup(
         description=f"replay {p.name}",
     )
     return LiveSetup(source, f"replay {p.name}", f"replay-{p.stem}"[:40])
-
-
-def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
-    """Start the session, run the App in this terminal, and always stop the session (a live
-    one runs in the engine process, :mod:`bench.engine.client`; the App cannot tell). Even a
-    Ctrl-C while Textual is still being imported stops the session."""
-    try:
-        from bench.tui.app import BenchApp
-
-        app = BenchApp(session, handle_signals=True, **app_kwargs)
-        session.start()
-        code = app.run()
-    finally:
-        session.stop()
-    return int(code or 0) if not (session.runner and session.runner.error) else 1

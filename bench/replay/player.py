@@ -20,12 +20,15 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bench.pipeline.steps import StepOutput
 from bench.records.events import EventKind, describe
 from devices.base import FileSource, LiveSource, SourceBatch
+
+if TYPE_CHECKING:  # a type only: the screen process imports this module, not the pipeline
+    from bench.pipeline.steps import StepOutput
 
 SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
 """The speeds the TUI cycles through; None = as fast as the pipeline takes frames."""
