@@ -13,8 +13,8 @@ import numpy as np
 
 from bench.config import Config
 from bench.fusion.estimator import Estimator
-from bench.pipeline.assembly import SAMPLE_DTYPE
 from bench.records.board import SPEED_DTYPE
+from bench.records.samples import SAMPLE_DTYPE
 from protocol.layout import G0, NOMINAL_SCALE
 
 

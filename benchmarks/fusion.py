@@ -40,8 +40,8 @@ def _steps(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 def measure(n_samples: int = 1_000_000, repeat: int = 5) -> list[Figure]:
     from bench.config import Config
     from bench.fusion.reference import fuse
-    from bench.pipeline.assembly import usable
     from bench.pipeline.steps import Pipeline
+    from bench.records.samples import usable
 
     config = Config()
     steps = _steps(n_samples)

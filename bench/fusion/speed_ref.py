@@ -41,8 +41,8 @@ import numpy as np
 from bench.config import EstimatorSettings
 from bench.fusion.isolation import NEVER
 from bench.fusion.kalman import SpeedKalman
-from bench.pipeline.assembly import MAX_BRIDGE_TICKS
 from bench.records.board import SPEED_DTYPE
+from bench.records.samples import MAX_BRIDGE_TICKS
 from protocol.layout import TICK_S, TS_WRAP
 
 _INF = math.inf

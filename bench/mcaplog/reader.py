@@ -32,10 +32,10 @@ import numpy as np
 from bench.config import Config, config_from_dict
 from bench.errors import BenchError
 from bench.mcaplog import schemas as S
-from bench.pipeline.assembly import SAMPLE_DTYPE
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE
 from bench.records.events import EVENT_DTYPE
 from bench.records.results import RESULT_DTYPE
+from bench.records.samples import SAMPLE_DTYPE
 from devices.base import SourceBatch, SourceNotice
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.layout import Outcome

@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.samples import MAX_BRIDGE_TICKS, NO_SAMPLES, SAMPLE_DTYPE
 from protocol.batch import DecodedBatch
 from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
 
@@ -44,18 +45,6 @@ a live step, or the burst after a stall); longer ones the vectorised path."""
 _FEW_ROWS = 16
 """Emitted samples up to this many get their gap events in plain Python."""
 
-SAMPLE_DTYPE = np.dtype(
-    [
-        ("n", "<i8"),  # unwrapped sample index (counter)
-        ("ticks", "<i8"),  # unwrapped board time, 100 us ticks
-        ("t", "<f8"),  # receive time of the sample's last accepted frame
-        ("seq", "<i8"),  # arrival index (whole stream) of the sample's last accepted frame
-        ("code", "<i4", (3,)),  # raw ADC codes ch1..ch3 (0 where absent)
-        ("status", "u1", (3,)),  # status bytes ch1..ch3
-        ("present", "?", (3,)),  # a frame of that channel joined the sample
-    ]
-)
-
 _NONE = np.iinfo(np.int64).min // 4
 _ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
 _ERRORS = (
@@ -63,8 +52,6 @@ _ERRORS = (
     (int(Outcome.WRONG_DLC), EventKind.WRONG_DLC, "dlc"),
     (int(Outcome.UNKNOWN_ID), EventKind.UNKNOWN_ID, "can_id"),
 )
-MAX_BRIDGE_TICKS = 3600 / TICK_S
-"""Longest receive-time gap (1 h) trusted to count board-timestamp wraps across."""
 
 _HALF_CW = COUNTER_WRAP // 2
 _HALF_TS = TS_WRAP // 2
@@ -78,9 +65,6 @@ _STATUS_FLAG, _GAP, _SAMPLES_LOST = (
     int(EventKind.GAP),
     int(EventKind.SAMPLES_LOST),
 )
-
-NO_SAMPLES = np.zeros(0, dtype=SAMPLE_DTYPE)
-"""Shared empty result: a zero-length array has nothing to write, so sharing is safe."""
 
 Row = list
 """An open sample: [n, ticks, t, seq, code[3], status[3], present[3]] (SAMPLE_DTYPE order)."""
@@ -160,11 +144,6 @@ def _place(
     if known:
         return n0 + est, big_t0 + d
     return n0 + est + (c - c0 - est + _HALF_CW) % COUNTER_WRAP - _HALF_CW, big_t0 + d
-
-
-def usable(samples: np.ndarray) -> np.ndarray:
-    """(N, 3) bool: channel present and none of status bits 0..3 set."""
-    return samples["present"] & ((samples["status"] & STATUS_FAULT_MASK) == 0)
 
 
 class Assembler:

@@ -19,11 +19,12 @@ import numpy as np
 from bench.config import Config
 from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
-from bench.pipeline.assembly import NO_SAMPLES, SAMPLE_DTYPE, Assembler, usable
+from bench.pipeline.assembly import Assembler
 from bench.pipeline.stats import Stats
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.results import RESULT_DTYPE
+from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
