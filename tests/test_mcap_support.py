@@ -217,7 +217,7 @@ def emulated(seconds: float = 15.0, *, seed: int = 5, faults: bool = True) -> An
 def uart_batches(sim: Any, packets_per_batch: int = 300) -> list[SourceBatch]:
     """The emulator's UART byte stream as a serial receiver sees it (the acceptance
     runner's feed: packet by packet at its send time, FLAG_UART frames, link errors)."""
-    from bench.acceptance.runner import uart_batches as feed
+    from bench.acceptance.feeds import uart_batches as feed
 
     return list(feed(sim, packets_per_batch))
 

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.acceptance.checks import KINDS, CheckSpec, Param
+from bench.acceptance.checks.base import CheckSpec, Param
+from bench.acceptance.checks.registry import KINDS
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
 from devices.textfile import path_or_packaged, read_text_file

@@ -19,16 +19,16 @@ import warnings
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from bench import __version__
-from bench.acceptance.checks import ESTIMATORS, KINDS, VERDICTS, Measurement, RunData
+from bench.acceptance.checks.base import ESTIMATORS
+from bench.acceptance.checks.registry import KINDS
+from bench.acceptance.model import VERDICTS, Measurement, RunData
+from bench.acceptance.outcome import RunOutcome
 from bench.records.events import EventKind
-
-if TYPE_CHECKING:
-    from bench.acceptance.runner import Outcome
 
 RECORD_FORMAT = "acb3-bench-acceptance-record/1"
 MAX_POINTS = 6000
@@ -77,7 +77,7 @@ def counts(measurements: list[Measurement]) -> dict[str, int]:
 # --------------------------------------------------------------------------- junit
 
 
-def junit_xml(outcome: Outcome) -> bytes:
+def junit_xml(outcome: RunOutcome) -> bytes:
     """JUnit XML in the form Jenkins, GitLab and GitHub read: a testsuite per plan, a
     testcase per check; fail -> <failure>, error -> <error>, skip -> <skipped>; the
     measured value, limits and verdict in each testcase's <system-out>."""
@@ -147,7 +147,7 @@ def junit_xml(outcome: Outcome) -> bytes:
 # --------------------------------------------------------------------------- record
 
 
-def build_record(outcome: Outcome, files: dict[str, Any]) -> dict[str, Any]:
+def build_record(outcome: RunOutcome, files: dict[str, Any]) -> dict[str, Any]:
     plan = outcome.plan
     run = outcome.run
     run_info: dict[str, Any] = {
@@ -451,7 +451,7 @@ def _error_range(ax: Any, measurements: list[Measurement]) -> float | None:
     return lim if lim < float(values.max()) else None
 
 
-def write_plots(outcome: Outcome, out: Path) -> dict[str, str]:
+def write_plots(outcome: RunOutcome, out: Path) -> dict[str, str]:
     run = outcome.run
     if run is None or len(run.results) == 0:
         return {}
@@ -482,7 +482,7 @@ font-size:85%}img{max-width:100%;border:1px solid #ddd;margin:.5em 0}
 """
 
 
-def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str]) -> str:
+def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, str]) -> str:
     e = html.escape
     plan = outcome.plan
     c = record["counts"]
@@ -576,7 +576,7 @@ def _frames_text(frames: dict[str, Any]) -> str:
 # --------------------------------------------------------------------------- all of it
 
 
-def write_reports(outcome: Outcome, *, plots: bool = True) -> dict[str, Path]:
+def write_reports(outcome: RunOutcome, *, plots: bool = True) -> dict[str, Path]:
     """Write every output file into the outcome's folder; return their paths (also kept
     in outcome.files). A plot that cannot be drawn is an error of the bench, recorded."""
     out = outcome.out_dir
