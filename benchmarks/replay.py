@@ -9,7 +9,7 @@ All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
   ``for msg in can.LogReader(path): pass``.
 * python-can cannot read MCAP; the MCAP anchor is the ``mcap`` package's own reader iterating
   the same file's frame messages (``make_reader(f).iter_messages(topics=[...])``).
-* MCAP write: a :class:`bench.mcaplog.writer.McapSink` (what a live run logs: frames,
+* MCAP write: a :class:`bench.mcaplog.sink.McapSink` (what a live run logs: frames,
   samples, results, status, events) fed the pipeline steps of the whole log, from the
   first ``write`` to the end of ``close()`` (summary and footer written). The file it
   writes is the one the MCAP replay then reads, i.e. a recorded run.
@@ -102,7 +102,7 @@ def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
 
 def write_mcap(path: Path, steps: list[Any]) -> Any:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     sink = McapSink(path, Config(), {"source": "benchmark", "mode": "benchmark"})
     for step in steps:

@@ -189,7 +189,7 @@ def test_tui_survives_disk_full_and_shows_it(
 ) -> None:
     import builtins
 
-    import bench.mcaplog.writer as writer
+    import bench.mcaplog.file as writer
     from bench.tui.app import BenchApp
 
     real_open = builtins.open

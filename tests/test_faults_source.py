@@ -52,7 +52,7 @@ def event_kinds(runner: LiveRunner) -> list[int]:
 
 
 def start(source: Any, tmp_path: Path) -> tuple[LiveRunner, Any, Path]:
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     path = tmp_path / "run.mcap"
     mcap = McapSink(path, CONFIG, {"source": "fault test"}, flush_interval_s=0.2)

@@ -108,7 +108,7 @@ def test_pipeline_takes_any_board_like_stream(
 @pytest.fixture(scope="module")
 def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     """A small MCAP file as a live run writes it (frames, samples, results, events)."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from devices.emulator import scenario_from_dict, simulate
 
     sim = simulate(scenario_from_dict({"duration_s": 0.5, "sample_rate_hz": 200, "seed": 3}))

@@ -65,7 +65,7 @@ def _reseal(frames: np.ndarray) -> np.ndarray:
 
 def _mcap_bytes(tmp: Path, frames: np.ndarray) -> bytes:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 

@@ -12,7 +12,7 @@ import pytest
 from bench.cli import main
 from bench.config import Config
 from bench.mcaplog.info import spans
-from bench.mcaplog.writer import McapSink
+from bench.mcaplog.sink import McapSink
 from tests.test_mcap_roundtrip import csv_text
 from tests.test_mcap_support import run_pipeline, synthetic_stream
 

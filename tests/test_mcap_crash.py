@@ -53,7 +53,7 @@ print("closed", sink.frames_logged, sink.error, flush=True)
 """
 
 
-THREAD_SINK = "bench.mcaplog.writer.McapSink"
+THREAD_SINK = "bench.mcaplog.sink.McapSink"
 PROCESS_SINK = "bench.mcaplog.writer_process.McapProcessSink"
 
 

@@ -12,9 +12,11 @@ import pytest
 
 from bench.config import Config
 from bench.mcaplog import schemas as S
+from bench.mcaplog.encoder import MessageEncoder
+from bench.mcaplog.file import McapFile
 from bench.mcaplog.reader import McapLog, read_events, read_frames, read_results
+from bench.mcaplog.sink import McapSink
 from bench.mcaplog.source import McapFrameSource
-from bench.mcaplog.writer import McapFile, McapSink, MessageEncoder
 from bench.records.events import EVENT_DTYPE, EventKind, describe, severity
 from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
 

@@ -19,6 +19,7 @@ import pytest
 from bench.config import ChannelCal, Config
 from bench.mcaplog import schemas as S
 from bench.mcaplog.compare import compare_results
+from bench.mcaplog.emulation import write_emulation
 from bench.mcaplog.reader import (
     McapLog,
     read_attachments,
@@ -32,8 +33,8 @@ from bench.mcaplog.reader import (
     read_topic,
     recorded_config,
 )
+from bench.mcaplog.sink import McapSink
 from bench.mcaplog.source import McapFrameSource
-from bench.mcaplog.writer import McapSink, write_emulation
 from bench.pipeline.steps import StepOutput
 from devices.base import SourceBatch
 from protocol.frames import FRAME_DTYPE
@@ -246,7 +247,7 @@ def test_nan_receive_times_get_a_monotonic_substitute(tmp_path: Path) -> None:
 def test_write_never_blocks_and_counts_drops(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.mcaplog import writer as W
+    from bench.mcaplog import encoder as W
 
     slow = W.MessageEncoder.write_frames
 
@@ -289,7 +290,7 @@ def test_unwritable_path_is_recorded_not_raised(
 def test_disk_full_midway_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.mcaplog import writer as W
+    from bench.mcaplog import file as W
 
     real_write_chunk = W.McapFile._write_chunk
     calls = {"n": 0}

@@ -173,7 +173,7 @@ def test_ctrl_c_and_sigterm_do_not_stop_the_writer(tmp_path: Path) -> None:
 def test_log_writer_setting(monkeypatch: pytest.MonkeyPatch) -> None:
     from bench.errors import BenchError
     from bench.live.setup import recording_sink_class
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     monkeypatch.delenv("BENCH_LOG_WRITER", raising=False)
     assert recording_sink_class() is McapProcessSink

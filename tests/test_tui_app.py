@@ -228,7 +228,7 @@ def test_tolerance_ladder() -> None:
 
 
 def test_quit_finalises_the_mcap_file(tmp_path: Path) -> None:
-    mcap_writer = pytest.importorskip("bench.mcaplog.writer")
+    mcap_writer = pytest.importorskip("bench.mcaplog.sink")
     from mcap.reader import make_reader
 
     frames = make_frames(400)

@@ -16,7 +16,6 @@ import numpy as np
 
 VERDICTS = ("pass", "warn", "fail", "error", "skip")
 
-
 EXIT_CODES = {"pass": 0, "fail": 1, "error": 2}
 
 

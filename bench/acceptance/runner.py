@@ -46,7 +46,6 @@ from bench.replay.run import run_steps
 SILENCE_S = 10.0
 """A live run with no new sample for this long (wall clock) has lost its board: error."""
 
-
 DRAIN_S = 0.3
 """After the virtual board's last frame: time for it to cross the virtual bus."""
 
@@ -218,7 +217,7 @@ def _run_emulated(
     plan: Plan, config: Config, opts: Options, info: dict[str, Any]
 ) -> tuple[RunData, str]:
     """Simulate, then the pipeline as fast as it goes, logging to DIR/run.mcap."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from devices.emulator import simulate
 
     sim = simulate(plan.scenario)
@@ -264,7 +263,7 @@ def _run_live(
     """LiveRunner on an open source; operator steps in this thread; stop when done."""
     from bench.live.runner import LiveRunner
     from bench.live.setup import run_metadata
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     player = setup.emulator
     sim = getattr(player, "simulation", None)

@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         write_truth_csv(args.truth, sim.truth)
         print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
     if args.out:
-        from bench.mcaplog.writer import write_emulation
+        from bench.mcaplog.emulation import write_emulation
         from devices.emulator import write_output
 
         print(write_output(sim, args.out, mcap_writer=write_emulation))

@@ -155,7 +155,7 @@ LOG_WRITER_ENV = "BENCH_LOG_WRITER"
 
 def recording_sink_class() -> type:
     """The sink class a live recording uses, as BENCH_LOG_WRITER says."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from bench.mcaplog.writer_process import McapProcessSink
 
     mode = os.environ.get(LOG_WRITER_ENV, "process").strip().lower() or "process"

@@ -30,7 +30,6 @@ FLAG_SOURCES = (
 )
 """What may flag a channel for ``fault_detected`` (see :func:`channel_flags`)."""
 
-
 VOTE_SIGNATURE = {1: (0, 1), 2: (1, 2), 3: (0, 2)}
 """Votes (0-based v1..v3) that fail when channel c alone is bad: the two votes comparing the
 one slope value that does not use c with the two that do (ch1 -> v1, v2; ch2 -> v2, v3;
