@@ -134,7 +134,8 @@ def _board_done(app: Any) -> bool:
 
 def _collect(out: TuiRun, session: Any, path: Path) -> None:
     """The engine's figures, and the finished MCAP file read back."""
-    from bench.mcaplog.reader import McapLog, read_events
+    from bench.mcaplog.reader import McapLog
+    from bench.mcaplog.recorded import read_events
 
     report = session.report
     if report is None:

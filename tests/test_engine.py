@@ -137,7 +137,7 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
 
 
 def test_operator_actions_reach_the_run_through_the_app(tmp_path: Path, engine: Any) -> None:
-    from bench.mcaplog.reader import read_events
+    from bench.mcaplog.recorded import read_events
     from bench.tui.app import BenchApp, next_tolerance
 
     session = engine(board_plan(tmp_path))

@@ -14,7 +14,8 @@ from bench.config import Config
 from bench.mcaplog import schemas as S
 from bench.mcaplog.encoder import MessageEncoder
 from bench.mcaplog.file import McapFile
-from bench.mcaplog.reader import McapLog, read_events, read_frames, read_results
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import read_events, read_frames, read_results
 from bench.mcaplog.sink import McapSink
 from bench.mcaplog.source import McapFrameSource
 from bench.records.events import EVENT_DTYPE, EventKind, describe, severity

@@ -20,8 +20,8 @@ from bench.config import ChannelCal, Config
 from bench.mcaplog import schemas as S
 from bench.mcaplog.compare import compare_results
 from bench.mcaplog.emulation import write_emulation
-from bench.mcaplog.reader import (
-    McapLog,
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import (
     read_attachments,
     read_events,
     read_frames,

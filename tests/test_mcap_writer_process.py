@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.mcaplog.reader import McapLog, read_results
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import read_results
 from bench.mcaplog.writer_process import McapProcessSink, pack_steps, unpack_steps
 from bench.pipeline.steps import Pipeline, StepOutput
 from devices.base import SourceBatch, SourceNotice

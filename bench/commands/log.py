@@ -154,7 +154,7 @@ def export_csv(
 ) -> int:
     """Write the replay CSV: recorded results, or fusion recomputed from the raw frames."""
     from bench.config import load_config
-    from bench.mcaplog.reader import read_results, recorded_config
+    from bench.mcaplog.recorded import read_results, recorded_config
     from bench.mcaplog.source import McapFrameSource
     from bench.pipeline.steps import Pipeline
     from bench.records.results import CsvWriter

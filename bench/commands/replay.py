@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     console = Console(stderr=True)
     config = load_config(args.config)
     if args.config is None and str(args.input).lower().endswith(".mcap"):
-        from bench.mcaplog.reader import recorded_config
+        from bench.mcaplog.recorded import recorded_config
 
         recorded = recorded_config(args.input)
         if recorded is not None:
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
                 "--compare needs an .mcap input (only MCAP logs hold recorded results)"
             )
         from bench.mcaplog.compare import compare_results, print_comparison
-        from bench.mcaplog.reader import read_results
+        from bench.mcaplog.recorded import read_results
 
         report = compare_results(read_results(args.input), outcome.results)
         print_comparison(report, console)
