@@ -52,8 +52,9 @@ def mcap_iterate(path: Path, topic: str) -> int:
 def bench_replay(path: Path, csv: Path | None = None) -> Any:
     """The bench's replay path, as `bench replay` runs it (collect=False, no summary)."""
     from bench.config import Config
-    from bench.replay.run import CsvSink, replay
+    from bench.replay.run import replay
     from bench.replay.sources import open_replay
+    from bench.sinks.csv import CsvSink
 
     source = open_replay(path)
     sinks = [CsvSink(str(csv))] if csv is not None else []

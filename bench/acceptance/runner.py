@@ -473,7 +473,7 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         error=error,
         info=info,
     )
-    from bench.acceptance.report import write_reports
+    from bench.acceptance.report.write import write_reports
 
     write_reports(outcome, plots=opts.plots)
     return outcome

@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def result_table(outcome: RunOutcome) -> Table:
-    from bench.acceptance.report import format_limits, format_value
+    from bench.acceptance.report.text import format_limits, format_value
 
     table = Table(title=f"acceptance {outcome.plan.name}")
     table.add_column("check", style="bold")

@@ -17,7 +17,8 @@ from rich.progress import (
 
 from bench.config import load_config
 from bench.errors import BenchError
-from bench.replay.run import CsvSink, replay
+from bench.replay.run import replay
+from bench.sinks.csv import CsvSink
 from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20

@@ -14,7 +14,7 @@ from typing import Any
 from bench.config import load_config
 from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
-from bench.replay.run import CsvSink
+from bench.sinks.csv import CsvSink
 from bench.sinks.summary import print_summary
 
 
