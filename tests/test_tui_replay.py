@@ -109,7 +109,8 @@ def test_replay_keys_in_the_app() -> None:
         app = BenchApp(session, poll_hz=8)
         session.start()
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.pause()
+            # the footer is drawn after the first refresh, which a loaded machine delays
+            await wait_for(pilot, lambda: "spc Play" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
             for key in ("spc Play", "s Speed", "n Step", "j Next fail"):
                 assert key in footer
