@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
-from bench.textfile import read_text_file
-from bench.tomlcheck import error, is_integer, is_number, number_problem, to_float
+from devices.textfile import read_text_file
+from devices.tomlcheck import error, is_integer, is_number, number_problem, to_float
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -64,7 +64,7 @@ class EstimatorSettings:
     odometer_noise_floor_mps: float = 0.0005  # least odometer noise the filter assumes
     speed_noise_max_mps: float = 0.05  # cap of the noise learnt from the odometer innovations
     odometer_latency_s: float = 0.0  # SPEED_REF reports v(t - latency) beyond the clock mapping
-    latency_sigma_s: float = 0.03  # initial 1-sigma of that latency; 0 = not estimated
+    latency_sigma_s: float = 0.0  # initial 1-sigma of that latency; 0 = not estimated
     latency_psd: float = 1e-6  # its random walk, s^2/s (when estimated)
     odometer_gate_sigma: float = 4.0  # innovation beyond this many sigma: frame rejected
     suspect_recover_s: float = 0.5  # accepted frames for this long before "suspect" clears

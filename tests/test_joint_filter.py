@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -159,9 +160,9 @@ def test_sigma_limit_is_bounded(value: float) -> None:
 
 def test_settings_round_trip_and_latency_may_be_zero() -> None:
     cfg = config_from_dict(
-        {"fusion": {"gradient_sigma_limit_permil": 0.8}, "estimator": {"latency_sigma_s": 0.0}}
+        {"fusion": {"gradient_sigma_limit_permil": 0.8}, "estimator": {"odometer_latency_s": 0.0}}
     )
     assert cfg.gradient_sigma_limit_permil == 0.8
-    assert cfg.estimator == EstimatorSettings()
+    assert cfg.estimator == dataclasses.replace(EstimatorSettings(), odometer_latency_s=0.0)
     with pytest.raises(ConfigError, match="accel_psd"):
         config_from_dict({"estimator": {"accel_psd": 0.0}})

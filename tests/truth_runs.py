@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.assembly import SAMPLE_DTYPE
-from bench.records import SPEED_DTYPE
+from bench.records.board import SPEED_DTYPE
+from bench.records.samples import SAMPLE_DTYPE
 from protocol.layout import G0, NOMINAL_SCALE
 
 ANGLES_DEG = (30.0, 0.0, -30.0)

@@ -61,7 +61,6 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_UGATE] = 25.0
     p[jk.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
     p[jk.P_LEARN] = 100.0
-    p[jk.P_VMIN] = 0.5
     return p
 
 

@@ -51,7 +51,10 @@ M_LAST_SEEN = 13  # board time of the newest frame measured (applied or rejected
 M_TREND = 14  # moving mean of the normalised odometer innovations (grade manoeuvres)
 M_TREND_FROM = 15  # board time before which no new manoeuvre is declared
 M_RESLOW = 16  # slow mean of the parity residual, m/s^2
-M_SIZE = 17
+M_QUANT = 17  # least non-zero step between odometer readings, m/s (inf: none yet)
+M_LAST_Z = 18  # the previous reading, m/s
+M_HAVE_Z = 19  # 1 once there is a previous reading
+M_SIZE = 20
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -87,9 +90,8 @@ P_SJUMP = 29  # 1-sigma added to s then, m/s^2
 P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
 P_QK_BLIND = 31  # k's random walk per metre while no odometer frame is accepted
 P_LEARN = 32  # innovations (nu^2/S) up to this feed the odometer noise estimate
-P_VMIN = 33  # m/s: below this odometer reading, no latency or noise learning
-P_RES_LIMIT = 34  # residual limit, m/s^2 (clip of the residual's statistics)
-P_SIZE = 35
+P_RES_LIMIT = 33  # residual limit, m/s^2 (clip of the residual's statistics)
+P_SIZE = 34
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -109,6 +111,7 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_OK_SINCE] = math.nan
     m[M_ZUPT_FROM] = -math.inf
     m[M_RV] = p[P_RV0]
+    m[M_QUANT] = math.inf
     return x, cov, m
 
 
@@ -265,7 +268,16 @@ def run(  # type: ignore[no-untyped-def]
             when = f_when[j]
             m[M_LAST_SEEN] = when
             m[M_STILL] = 1.0 if f_still[j] else 0.0
-            rv = m[M_RV] if m[M_RV] > p[P_RV] else p[P_RV]
+            # the odometer's resolution: the least non-zero step between two readings
+            if m[M_HAVE_Z] != 0.0:
+                step = abs(z - m[M_LAST_Z])
+                if step > 0.0 and step < m[M_QUANT]:
+                    m[M_QUANT] = step
+            m[M_LAST_Z] = z
+            m[M_HAVE_Z] = 1.0
+            quant = m[M_QUANT] if m[M_QUANT] < 1.0 else 0.0
+            floor = p[P_RV]
+            rv = m[M_RV] if m[M_RV] > floor else floor
             if f_restart[j] or m[M_HAVE_V] == 0.0:
                 _restart_speed(x, cov, z, rv)
                 m[M_HAVE_V] = 1.0
@@ -281,12 +293,14 @@ def run(  # type: ignore[no-untyped-def]
             h[IA] = -lag
             # the latency shows only in motion: near standstill the odometer's dead band
             # (it reads 0 until a whole quantum) would pass for latency
-            moving = abs(z) >= p[P_VMIN]
+            moving = z != 0.0
             if p[P_LSIG] > 0.0 and moving:
                 h[IL] = -x[IA]
             nu = z - (x[IV] - lag * x[IA])
             s_nu = _innov_var(cov, h, rv)
-            accepted = nu * nu <= p[P_GATE] * s_nu
+            # a reading one quantum off is what a coarse odometer does, not a slip
+            reach = math.sqrt(p[P_GATE] * s_nu) + quant
+            accepted = abs(nu) <= reach
             if accepted:
                 _update(x, cov, h, nu, rv, ph)
                 m[M_LAST_FRAME] = when
@@ -307,7 +321,7 @@ def run(  # type: ignore[no-untyped-def]
             # odometer noise from the innovations within P_LEARN (vibration, coarse
             # quantisation): rejected ones too, or a gate set too tight would never widen;
             # a slide's frames soon pass P_LEARN and stay out
-            if moving and nu * nu <= p[P_LEARN] * s_nu:
+            if moving and accepted:
                 e2 = nu * nu - (s_nu - rv)
                 m[M_RV] += (e2 - m[M_RV]) / p[P_RV_TAU]
                 if m[M_RV] > p[P_RV_MAX]:
@@ -329,6 +343,7 @@ def run(  # type: ignore[no-untyped-def]
                             x[IS] -= slope
                             if cov[IS, IS] < slope * slope:
                                 cov[IS, IS] = slope * slope
+                            cov[IK, IK] += p[P_KJUMP] * p[P_KJUMP]  # a curve's start or end
                             _restart_speed(x, cov, z, rv)
                             m[M_STREAK_T0] = math.nan
                             m[M_LAST_FRAME] = when
@@ -345,7 +360,7 @@ def run(  # type: ignore[no-untyped-def]
             # the channel's parity weight; its share of u, that times the u weight
             leak = m[M_RESLOW] * excl_gain[latched[i] - 1]
             x[IS] -= leak
-            cov[IS, IS] += 0.25 * leak * leak
+            cov[IS, IS] += leak * leak
         if r_i == r_i and dt > 0.0:
             m[M_RESLOW] += dt / p[P_RESLOW_TAU] * (r_i - m[M_RESLOW])
         # -- specific force along the track: u = a + s
