@@ -64,8 +64,9 @@ class EstimatorSettings:
     odometer_noise_floor_mps: float = 0.0005  # least odometer noise the filter assumes
     speed_noise_max_mps: float = 0.05  # cap of the noise learnt from the odometer innovations
     odometer_latency_s: float = 0.0  # SPEED_REF reports v(t - latency) beyond the clock mapping
-    latency_sigma_s: float = 0.0  # initial 1-sigma of that latency; 0 = not estimated
+    latency_sigma_s: float = 0.03  # initial 1-sigma of that latency; 0 = not estimated
     latency_psd: float = 1e-6  # its random walk, s^2/s (when estimated)
+    latency_min_accel_mps2: float = 0.35  # estimated only while |a| exceeds this (observable)
     odometer_gate_sigma: float = 4.0  # innovation beyond this many sigma: frame rejected
     suspect_recover_s: float = 0.5  # accepted frames for this long before "suspect" clears
     odometer_reset_s: float = 2.0  # rejected this long: restart the speed at the odometer

@@ -54,6 +54,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_RV_TAU] = 200.0
     p[jk.P_RESLOW_TAU] = 1.0
     p[jk.P_RES_LIMIT] = s.residual_limit_mps2
+    p[jk.P_LAT_ACC] = s.latency_min_accel_mps2
     p[jk.P_TREND_ALPHA] = s.trend_alpha
     p[jk.P_TREND_LIMIT] = s.trend_limit
     p[jk.P_KJUMP] = s.grade_rate_jump

@@ -91,7 +91,8 @@ P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
 P_QK_BLIND = 31  # k's random walk per metre while no odometer frame is accepted
 P_LEARN = 32  # innovations (nu^2/S) up to this feed the odometer noise estimate
 P_RES_LIMIT = 33  # residual limit, m/s^2 (clip of the residual's statistics)
-P_SIZE = 34
+P_LAT_ACC = 34  # m/s^2: the latency is estimated only while |a| exceeds this
+P_SIZE = 35
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -294,7 +295,7 @@ def run(  # type: ignore[no-untyped-def]
             # the latency shows only in motion: near standstill the odometer's dead band
             # (it reads 0 until a whole quantum) would pass for latency
             moving = z != 0.0
-            if p[P_LSIG] > 0.0 and moving:
+            if p[P_LSIG] > 0.0 and moving and abs(x[IA]) > p[P_LAT_ACC]:
                 h[IL] = -x[IA]
             nu = z - (x[IV] - lag * x[IA])
             s_nu = _innov_var(cov, h, rv)
