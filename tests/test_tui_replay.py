@@ -13,8 +13,8 @@ from bench.config import Config
 from bench.live import LiveRunner
 from bench.liveopts import LiveSetup
 from bench.replay import replay
-from bench.tui.app import BenchApp
 from bench.tui.panels.pairs import PairsPanel
+from bench.tui.replay_app import ReplayApp
 from bench.tui.replay_source import ReplaySource, ReplayTap
 from bench.tui.session import Session, wait_until
 from tests.test_tui_app import SIZE, wait_for
@@ -106,12 +106,12 @@ def test_replay_keys_in_the_app() -> None:
     )
 
     async def run() -> None:
-        app = BenchApp(session, poll_hz=8)
+        app = ReplayApp(session, poll_hz=8)
         session.start()
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.pause()
+            await wait_for(pilot, lambda: "Play" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
-            for key in ("spc Play", "s Speed", "n Step", "j Next fail"):
+            for key in ("spc Play", "s Speed", "n Step", "j Next", "t Target", "b Back"):
                 assert key in footer
             await pilot.press("j")
             await wait_for(pilot, lambda: app.cursor_n == 300)
