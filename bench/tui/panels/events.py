@@ -235,9 +235,9 @@ class EventsPanel(_EventTable):
         else:
             others = fresh
         added, changed = merge_events(self._rows, others)
+        self.kinds_seen.update(r.kind for r in added)
         if missed:
             added.insert(0, Row("…", int(EventKind.MARK), "… more events than the buffer"))
-        self.kinds_seen.update(r.kind for r in added)
         self._put(added, changed)
         self._last = fresh[-1]
         self.received += len(fresh)
