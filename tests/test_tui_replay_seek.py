@@ -10,8 +10,8 @@ import numpy as np
 
 from bench.config import Config
 from bench.live import LiveRunner
-from bench.replay import replay
 from bench.liveopts import LiveSetup
+from bench.replay import replay
 from bench.tui.panels.events import EventsPanel
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.replay_app import ReplayApp, create_app
