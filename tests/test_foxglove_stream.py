@@ -79,3 +79,104 @@ def test_a_port_in_use_is_one_line_error() -> None:
             stream_sink(Config(), port=first.port)
     finally:
         first.close()
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> None:
+    """`bench run --emulate ... --foxglove 0`: the stream of a real run. A client connects
+    when the command prints the address, so it misses the first moments; what it receives
+    must be exactly the end of each topic in the MCAP file the same run wrote."""
+    import re
+    import subprocess
+    import sys
+    import time
+
+    path = tmp_path / "run.mcap"
+    cmd = [sys.executable, "-m", "bench", "run", "--emulate", "level_run", "--duration", "5"]
+    cmd += ["--mcap", str(path), "--foxglove", "0", "--quiet"]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr is not None
+    port = None
+    lines = []
+    deadline = time.monotonic() + 60
+    while port is None and time.monotonic() < deadline:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        lines.append(line)
+        m = re.search(r"Foxglove live stream on ws://127\.0\.0\.1:(\d+)", line)
+        if m:
+            port = int(m.group(1))
+    assert port, "".join(lines)
+    client = Client(port).start()
+    rest = proc.communicate(timeout=120)[1]
+    client.wait_quiet(quiet_s=1.0)
+    got = client.stop()
+    assert proc.returncode == 0, "".join(lines) + rest
+    assert "Traceback" not in rest
+    channels, messages = mcap_contents(path)
+    advertised = {c["topic"]: (c["encoding"], c["schemaName"]) for c in got.channels.values()}
+    assert advertised == channels
+    for topic in ("/can/frames", "/bench/results", "/bench/samples", "/bench/status"):
+        received = got.messages.get(topic, [])
+        assert len(received) > 100 or (topic == "/bench/status" and received), topic
+    for topic, expected in messages.items():
+        received = got.messages.get(topic, [])
+        assert len(received) <= len(expected), topic
+        if received:
+            assert received == expected[-len(received) :], topic  # the file's own tail
+
+
+def test_foxglove_binds_this_machine_only_by_default() -> None:
+    import argparse
+
+    from bench.mcaplog.foxglove_ws import DEFAULT_HOST, add_foxglove_arguments
+
+    p = argparse.ArgumentParser()
+    add_foxglove_arguments(p)
+    assert p.parse_args([]).foxglove is None
+    args = p.parse_args(["--foxglove"])
+    assert (args.foxglove, args.foxglove_host) == (
+        8765,
+        "127.0.0.1",
+    ) and args.foxglove_host == DEFAULT_HOST
+    assert p.parse_args(["--foxglove", "9000"]).foxglove == 9000
+    with pytest.raises(SystemExit):
+        p.parse_args(["--foxglove", "70000"])
+
+
+def test_tui_foxglove_streams_from_the_engine_process(tmp_path: Path) -> None:
+    """`bench tui --emulate ... --foxglove 0`: the stream is built in the engine process,
+    beside the recording, and announced before the screen opens."""
+    import re
+
+    from bench.cli import build_parser
+    from bench.engine import start_engine
+    from bench.engine_plans import LivePlan, cli_values
+
+    args = build_parser().parse_args(
+        ["tui", "--emulate", "level_run", "--foxglove", "0", "--mcap", str(tmp_path / "t.mcap")]
+    )
+    said: list[str] = []
+    session = start_engine(
+        LivePlan(config=Config(), args=cli_values(args), log_dir=tmp_path), warn=said.append
+    )
+    try:
+        found = [m for line in said if (m := re.search(r"ws://127\.0\.0\.1:(\d+)", line))]
+        assert found, said
+        client = Client(int(found[0].group(1))).start()
+        client.wait_quiet(quiet_s=0.1, timeout=3.0)
+        deadline = 30.0
+        import time
+
+        end = time.monotonic() + deadline
+        while len(client.received.messages.get("/bench/results", [])) < 50:
+            assert time.monotonic() < end, client.received.counts()
+            time.sleep(0.1)
+        got = client.stop()
+        assert {c["topic"] for c in got.channels.values()} >= {"/bench/results", "/can/frames"}
+    finally:
+        session.stop()
+    assert session.report is not None and session.report.error is None

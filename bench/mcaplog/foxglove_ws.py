@@ -215,3 +215,50 @@ def stream_sink(config: Config, host: str = DEFAULT_HOST, port: int = DEFAULT_PO
         raise BenchError(f"--foxglove: {reason}")
     log.info("Foxglove live stream on %s", sink.path)
     return sink
+
+
+# -- the command line ----------------------------------------------------------------------------
+def _port(text: str) -> int:
+    import argparse
+
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
+    if not 0 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"port {port} is not in 0..65535")
+    return port
+
+
+def add_foxglove_arguments(parser: Any) -> None:
+    """``--foxglove [PORT]`` and ``--foxglove-host`` for the live commands."""
+    parser.add_argument(
+        "--foxglove",
+        nargs="?",
+        const=DEFAULT_PORT,
+        default=None,
+        type=_port,
+        metavar="PORT",
+        help=f"also serve the run live over the Foxglove WebSocket protocol (default port "
+        f"{DEFAULT_PORT}; 0 picks a free one); open it in Foxglove with "
+        "docs/foxglove/bench-layout.json",
+    )
+    parser.add_argument(
+        "--foxglove-host",
+        default=DEFAULT_HOST,
+        metavar="HOST",
+        help=f"address the Foxglove stream listens on (default {DEFAULT_HOST}: this machine only)",
+    )
+
+
+def open_stream(args: Any, config: Config, say: Any = None) -> Any:
+    """The live stream the command line asks for (None without ``--foxglove``), announced
+    through ``say`` with the address a Foxglove client connects to."""
+    port = getattr(args, "foxglove", None)
+    if port is None:
+        return None
+    host = getattr(args, "foxglove_host", DEFAULT_HOST) or DEFAULT_HOST
+    sink = stream_sink(config, host, port)
+    if say is not None:
+        say(f"Foxglove live stream on {stream_label(host, sink.port)}")
+    return sink
