@@ -74,11 +74,17 @@ def test_plot_labels_on_screen_are_round() -> None:
             app.apply_snapshot(snap)  # type: ignore[arg-type]
             await pilot.pause()
             lines = screen_text(app).splitlines()
-            plot_rows = [ln for ln in lines if ln.startswith("│") and "Gradient" not in ln][8:20]
-            labels = [m.group(1) for ln in plot_rows if (m := re.match(r"│(-?\d+\.?\d*) ", ln))]
-            assert labels, "no y labels"
-            values = sorted(float(v) for v in labels)
-            assert len(set(np.round(np.diff(values), 9))) == 1  # evenly spaced
+            top = next(i for i, ln in enumerate(lines) if "Gradient" in ln)
+            labelled = [
+                (i, float(m.group(1)))
+                for i, ln in enumerate(lines[top + 1 : top + 20], start=top + 1)
+                if (m := re.match(r"│(-?\d+\.?\d*) ", ln))
+            ]
+            assert len(labelled) >= 2, "no y labels"
+            rows = [i for i, _ in labelled]
+            values = [v for _, v in labelled]
+            assert len(set(np.round(np.diff(values), 9))) == 1  # evenly spaced values
+            assert min(np.diff(rows)) >= 2  # never on adjacent rows
 
     asyncio.run(run())
 

@@ -56,8 +56,9 @@ def nice_step(span: float, max_ticks: int) -> float:
 
 def y_ticks(lo: float, hi: float, rows: int) -> tuple[list[float], list[str]]:
     """Round tick values (multiples of a 1-2-5 step, so 0 whenever it is in range) about
-    every two to three rows, labelled with as many decimals as the step needs."""
-    step = nice_step(hi - lo, max(3, rows // 2))
+    three or more rows apart (closer, the row rounding puts some labels on adjacent rows and
+    the axis reads uneven), labelled with as many decimals as the step needs."""
+    step = nice_step(hi - lo, max(3, rows // 3))
     first = math.ceil(lo / step - 1e-9)
     last = math.floor(hi / step + 1e-9)
     ticks = [k * step for k in range(first, last + 1)]
