@@ -2,7 +2,7 @@
 
 ``python -m benchmarks.rec_toggle [--before 3] [--after 5] [--toggles 2]`` runs the live path
 as `bench demo` / `bench tui` do (virtual board at 1 kHz x 3 channels on a private virtual
-channel, CanBusSource, LiveRunner, the TUI's :class:`~bench.tui.session.Recorder` in front
+channel, CanBusSource, LiveRunner, the TUI's :class:`~bench.live.session.Recorder` in front
 of the live MCAP sink in its writer process) and presses ``r`` twice ``toggles`` times: stop
 (detach, then close the file off the processing thread, as the App's worker does) and start
 (a new file, a new writer process). It prints the frame-to-result latency p50/p99/max over
@@ -129,9 +129,9 @@ def run(
     import can
 
     from bench.config import Config
-    from bench.live import LiveRunner
-    from bench.liveopts import recording_sink_class
-    from bench.tui.session import Recorder
+    from bench.live.runner import LiveRunner
+    from bench.live.session import Recorder
+    from bench.live.setup import recording_sink_class
     from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, simulate, start_virtual_board
 

@@ -50,8 +50,8 @@ async def _drive(
 def main(argv: list[str] | None = None) -> int:
     from bench.commands.demo import DEMO_SCENARIO
     from bench.config_choice import scenario_config
-    from bench.engine import start_engine
-    from bench.engine_plans import EmulatorPlan
+    from bench.engine.client import start_engine
+    from bench.engine.plans import EmulatorPlan
     from bench.tui.app import BenchApp
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])

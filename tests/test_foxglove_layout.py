@@ -13,8 +13,9 @@ from typing import Any
 import pytest
 
 from bench.config import Config
-from bench.mcaplog.reader import read_topic
-from bench.mcaplog.writer import McapSink, write_emulation
+from bench.mcaplog.emulation import write_emulation
+from bench.mcaplog.recorded import read_topic
+from bench.mcaplog.sink import McapSink
 from devices.base import SourceBatch
 from tests.test_mcap_support import emulated, run_pipeline
 

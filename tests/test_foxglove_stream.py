@@ -13,8 +13,8 @@ from mcap.reader import make_reader
 
 from bench.config import Config
 from bench.errors import BenchError
-from bench.mcaplog.foxglove_ws import stream_sink
-from bench.mcaplog.writer import McapSink
+from bench.mcaplog.foxglove_stream import stream_sink
+from bench.mcaplog.sink import McapSink
 from devices.base import SourceBatch
 from tests.foxglove_client import SUBPROTOCOLS, Client
 from tests.test_mcap_support import emulated, run_pipeline
@@ -132,7 +132,8 @@ def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> 
 def test_foxglove_binds_this_machine_only_by_default() -> None:
     import argparse
 
-    from bench.mcaplog.foxglove_ws import DEFAULT_HOST, add_foxglove_arguments
+    from bench.mcaplog.foxglove_stream import add_foxglove_arguments
+    from bench.mcaplog.foxglove_ws import DEFAULT_HOST
 
     p = argparse.ArgumentParser()
     add_foxglove_arguments(p)
@@ -153,8 +154,8 @@ def test_tui_foxglove_streams_from_the_engine_process(tmp_path: Path) -> None:
     import re
 
     from bench.cli import build_parser
-    from bench.engine import start_engine
-    from bench.engine_plans import LivePlan, cli_values
+    from bench.engine.client import start_engine
+    from bench.engine.plans import LivePlan, cli_values
 
     args = build_parser().parse_args(
         ["tui", "--emulate", "level_run", "--foxglove", "0", "--mcap", str(tmp_path / "t.mcap")]

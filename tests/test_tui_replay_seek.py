@@ -9,14 +9,14 @@ import asyncio
 import numpy as np
 
 from bench.config import Config
-from bench.live import LiveRunner
-from bench.liveopts import LiveSetup
-from bench.replay import replay
+from bench.live.runner import LiveRunner
+from bench.live.session import Session
+from bench.live.setup import LiveSetup
+from bench.replay.player import ReplaySource
+from bench.replay.run import replay
 from bench.tui.panels.events import EventsPanel
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.replay_app import ReplayApp, create_app
-from bench.tui.replay_source import ReplaySource
-from bench.tui.session import Session
 from tests.test_tui_app import SIZE, wait_for
 from tests.test_tui_support import ListFile, make_frames, screen_text
 

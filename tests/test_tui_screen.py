@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.events import EventKind
+from bench.live.session import Session
+from bench.records.events import EventKind
 from bench.tui.app import BenchApp
 from bench.tui.help import HelpScreen
 from bench.tui.panels.events import EventsPanel, MarksPanel, merge_events, stamp
 from bench.tui.panels.plot import TRACES, PlotSeries, legend_markup, render_plot, y_ticks
-from bench.tui.session import Session
 from tests.test_tui_app import wait_for
 from tests.test_tui_snapshots import valid
 from tests.test_tui_support import T0, screen_text

@@ -2,14 +2,15 @@
 
 Why this shape: Foxglove should show a live run exactly as it later shows the run's MCAP
 file, with the same layout (docs/foxglove/bench-layout.json). So the stream is not a second
-encoder: :class:`WsChannels` offers the part of :class:`~bench.mcaplog.writer.McapFile`'s
-interface the :class:`~bench.mcaplog.writer.MessageEncoder` writes to (schemas, channels,
+encoder: :class:`WsChannels` offers the part of :class:`~bench.mcaplog.file.McapFile`'s
+interface the :class:`~bench.mcaplog.encoder.MessageEncoder` writes to (schemas, channels,
 messages) on a foxglove-sdk WebSocket server, and :class:`FoxgloveSink` is the MCAP sink's
 very code (events, health every second, marks, drop events) writing into it. Same topics,
 same schemas, same messages, same counts.
 
 The receive path never waits on it: like the MCAP log it runs in a writer process of its own
-at idle priority, off the live CPU (:func:`stream_sink`), fed from the runner's sinks (the
+at idle priority, off the live CPU (:func:`bench.mcaplog.foxglove_stream.stream_sink`), fed
+from the runner's sinks (the
 processing thread only enqueues; a full queue drops the step and counts it in ``dropped``).
 Each connected client has the SDK's own bounded backlog (``BACKLOG`` messages; the SDK drops
 the oldest when a slow client falls behind).
@@ -31,7 +32,6 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
-from bench.errors import BenchError
 
 log = logging.getLogger("bench.foxglove")
 
@@ -169,7 +169,7 @@ class WsChannels:
 def foxglove_sink_class() -> type:
     """:class:`FoxgloveSink`, built on the MCAP sink (imported late: the writer process
     imports this module before it knows which sink it runs)."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     class FoxgloveSink(McapSink):  # type: ignore[misc, valid-type]
         """The MCAP sink's code writing into :class:`WsChannels` instead of a file."""
@@ -198,67 +198,3 @@ def foxglove_sink_class() -> type:
             return {**super().status(), "port": self.port}
 
     return FoxgloveSink
-
-
-def stream_sink(config: Config, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> Any:
-    """The live stream as a runner sink: the Foxglove server in a writer process of its own
-    (idle priority, off the live CPU), fed like the MCAP log. A server that cannot start
-    (port in use, bad address) is a one-line :class:`BenchError`."""
-    from bench.mcaplog.writer_process import McapProcessSink
-
-    sink = McapProcessSink(
-        stream_label(host, port), config, sink="foxglove", host=host, port=int(port)
-    )
-    if sink.error:
-        sink.close()
-        reason = str(sink.error).split(": ", 1)[-1]
-        raise BenchError(f"--foxglove: {reason}")
-    log.info("Foxglove live stream on %s", sink.path)
-    return sink
-
-
-# -- the command line ----------------------------------------------------------------------------
-def _port(text: str) -> int:
-    import argparse
-
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a port number, got {text!r}") from None
-    if not 0 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"port {port} is not in 0..65535")
-    return port
-
-
-def add_foxglove_arguments(parser: Any) -> None:
-    """``--foxglove [PORT]`` and ``--foxglove-host`` for the live commands."""
-    parser.add_argument(
-        "--foxglove",
-        nargs="?",
-        const=DEFAULT_PORT,
-        default=None,
-        type=_port,
-        metavar="PORT",
-        help=f"also serve the run live over the Foxglove WebSocket protocol (default port "
-        f"{DEFAULT_PORT}; 0 picks a free one); open it in Foxglove with "
-        "docs/foxglove/bench-layout.json",
-    )
-    parser.add_argument(
-        "--foxglove-host",
-        default=DEFAULT_HOST,
-        metavar="HOST",
-        help=f"address the Foxglove stream listens on (default {DEFAULT_HOST}: this machine only)",
-    )
-
-
-def open_stream(args: Any, config: Config, say: Any = None) -> Any:
-    """The live stream the command line asks for (None without ``--foxglove``), announced
-    through ``say`` with the address a Foxglove client connects to."""
-    port = getattr(args, "foxglove", None)
-    if port is None:
-        return None
-    host = getattr(args, "foxglove_host", DEFAULT_HOST) or DEFAULT_HOST
-    sink = stream_sink(config, host, port)
-    if say is not None:
-        say(f"Foxglove live stream on {stream_label(host, sink.port)}")
-    return sink

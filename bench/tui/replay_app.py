@@ -20,11 +20,11 @@ from textual.app import SystemCommand
 from textual.binding import Binding, BindingType
 from textual.screen import Screen
 
-from bench.events import EventKind
+from bench.records.events import EventKind
+from bench.replay.player import SEEK_TARGETS
 from bench.tui.app import BenchApp
 from bench.tui.panels.channels import RateMeter
 from bench.tui.panels.events import EventsPanel
-from bench.tui.replay_source import SEEK_TARGETS
 
 BACK_S = 10.0
 """How far ``b`` goes back (log time)."""
