@@ -183,14 +183,12 @@ def test_help_opens_with_question_mark_and_escape_closes_it() -> None:
         async with app.run_test(size=SIZE) as pilot:
             app.apply_snapshot(snap)  # type: ignore[arg-type]
             await pilot.press("question_mark")
-            await pilot.pause()
-            assert isinstance(app.screen, HelpScreen)
+            await wait_for(pilot, lambda: isinstance(app.screen, HelpScreen))
             text = screen_text(app)
             for key in ("plot window", "operator mark", "vote tolerance"):
                 assert key in text
             await pilot.press("escape")
-            await pilot.pause()
-            assert not isinstance(app.screen, HelpScreen)
+            await wait_for(pilot, lambda: not isinstance(app.screen, HelpScreen))
             await pilot.press("ctrl+p")
             await pilot.pause()
             await pilot.press("escape")  # the palette closes on Escape too
@@ -206,14 +204,14 @@ def test_footer_shows_w_and_help_and_title_says_paused() -> None:
     async def run() -> None:
         async with app.run_test(size=SIZE) as pilot:
             app.apply_snapshot(snap)  # type: ignore[arg-type]
-            await pilot.pause()
+            # the footer is drawn after the first refresh, which a loaded machine delays
+            await wait_for(pilot, lambda: "Quit" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
             for key in ("w Window", "f Filter", "? Help", "p Pause display"):
                 assert key in footer
             assert "PAUSED" not in screen_text(app).splitlines()[0]
             await pilot.press("p")
-            await pilot.pause()
-            assert " PAUSED " in screen_text(app).splitlines()[0]
+            await wait_for(pilot, lambda: " PAUSED " in screen_text(app).splitlines()[0])
             await pilot.press("p")
             await pilot.pause()
             assert "PAUSED" not in screen_text(app).splitlines()[0]
