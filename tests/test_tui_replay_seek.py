@@ -93,3 +93,33 @@ def test_seek_targets_back_and_restart() -> None:
     asyncio.run(run())
     for s in (session, *made):
         s.stop()
+
+
+def test_run_to_the_next_recorded_mark() -> None:
+    """Marks are in the log's event record, not in what fusion reports: j with the target
+    'mark' runs to the first recorded mark after the sample shown, and says when none is."""
+    frames = staged_log()
+    res = replay(ListFile(frames), Config()).results
+    t_of = dict(zip(res["n"].tolist(), res["t"].tolist(), strict=True))
+    marks = [(t_of[120], "operator mark 1"), (t_of[480], "operator mark 2")]
+    session = new_session(frames)
+    app = create_app(session, poll_hz=8, recorded_marks=marks)
+
+    async def run() -> None:
+        session.start()
+        async with app.run_test(size=SIZE) as pilot:
+            for _ in range(4):  # vote failure -> INVALID -> exclusion -> fault -> mark
+                await pilot.press("t")
+            assert app.seek_label == "mark"
+            await pilot.press("j")
+            await wait_for(pilot, lambda: app.cursor_n == 120, timeout=10)
+            await pilot.press("j")
+            await wait_for(pilot, lambda: app.cursor_n == 480, timeout=10)
+            await pilot.press("j")  # none left: the cursor stays, the replay stays paused
+            await pilot.pause(0.3)
+            assert app.cursor_n == 480 and session.replay is not None and session.replay.paused
+            await pilot.press("q")
+            await wait_for(pilot, lambda: not app.is_running)
+
+    asyncio.run(run())
+    session.stop()

@@ -83,14 +83,15 @@ class ReplayApp(BenchApp):
             return
         label, kinds = SEEK_TARGETS[self.target]
         self.seek_label = label
-        self.cursor_n = None
         if EventKind.MARK in kinds:
             t = self._next_mark_time()
-            if t is None:
+            if t is None:  # the sample shown stays shown
                 self.notify("no recorded mark after this point", severity="warning")
                 return
+            self.cursor_n = None
             replay.seek_time(t)
         else:
+            self.cursor_n = None
             replay.seek_event(kinds)
         self._update_status_bar()
 
