@@ -112,7 +112,9 @@ def test_command_line_names_the_unit_over_the_plan(tmp_path: Path) -> None:
 
 
 def test_no_dut_given_says_so(tmp_path: Path) -> None:
-    code, out, _ = run(tmp_path, PLAN.replace('dut = { serial = "SN-0042", firmware = "1.2.3" }', ""))
+    code, out, _ = run(
+        tmp_path, PLAN.replace('dut = { serial = "SN-0042", firmware = "1.2.3" }', "")
+    )
     assert code == 0
     record = json.loads((out / "record.json").read_text())
     assert record["dut"]["serial"] is None
@@ -125,7 +127,7 @@ def test_plan_meant_to_fail_that_fails_as_designed_exits_0_without_a_junit_failu
     out = tmp_path / "out"
     assert main(["accept", "reference-sign", "--out", str(out), "--no-plots"]) == 0
     printed = " ".join(capsys.readouterr().out.split())
-    assert "PASS plan reference-sign: behaved as designed" in printed
+    assert "PASS plan reference-sign (behaved as designed" in printed
     root = validate_junit(out / "junit.xml")
     assert root.findall(".//failure") == [] and root.find("testsuite").get("failures") == "0"
     case = root.find(".//testcase[@name='device gradient with its sign']")

@@ -25,6 +25,9 @@ import numpy as np
 
 from bench import __version__
 from bench.acceptance.checks import ESTIMATORS, KINDS, VERDICTS, Measurement, RunData
+from bench.acceptance.expectation import expectation_text, plan_line, status_of
+from bench.acceptance.measured import measured_text, reading_extra
+from bench.acceptance.signoff import SIGN_OFF_CSS, dut_html, sign_off_html
 from bench.events import EventKind
 
 if TYPE_CHECKING:
@@ -45,14 +48,6 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def format_value(m: Measurement) -> str:
-    if m.value is None or not math.isfinite(m.value):
-        return "n/a"
-    if m.unit == "fraction":
-        return f"{m.value:.4%}"
-    return f"{m.value:.6g} {m.unit}"
 
 
 def format_limits(m: Measurement) -> str:
@@ -82,14 +77,14 @@ def junit_xml(outcome: Outcome) -> bytes:
     testcase per check; fail -> <failure>, error -> <error>, skip -> <skipped>; the
     measured value, limits and verdict in each testcase's <system-out>."""
     ms = outcome.measurements
-    c = counts(ms)
+    statuses = [status_of(m) for m in ms]
     suite_name = f"acceptance.{outcome.plan.name}"
     attrs = {
         "name": suite_name,
         "tests": str(len(ms)),
-        "failures": str(c["fail"]),
-        "errors": str(c["error"]),
-        "skipped": str(c["skip"]),
+        "failures": str(sum(s in ("failure", "not as designed") for s in statuses)),
+        "errors": str(statuses.count("error")),
+        "skipped": str(statuses.count("skipped")),
         "time": f"{outcome.wall_s:.3f}",
     }
     root = ET.Element("testsuites", attrs)
@@ -108,35 +103,50 @@ def junit_xml(outcome: Outcome) -> bytes:
         ("plan", outcome.plan.name),
         ("plan_title", outcome.plan.title),
         ("expected_verdict", outcome.plan.expect),
+        ("result", outcome.result),
         ("verdict", outcome.verdict),
+        *outcome.context.junit_properties(),
+        ("calibration", outcome.config.describe()),
         ("mode", outcome.mode),
         ("source", outcome.source),
         ("started_utc", outcome.started_utc),
         ("finished_utc", outcome.finished_utc),
     ):
         ET.SubElement(props, "property", {"name": name, "value": value})
-    for m in ms:
+    for m, status in zip(ms, statuses, strict=True):
         case = ET.SubElement(
             suite, "testcase", {"classname": suite_name, "name": m.name, "time": "0.000"}
         )
+        requirements = outcome.plan.requirement_ids(m.name)
+        if requirements:
+            case_props = ET.SubElement(case, "properties")
+            for rid in requirements:
+                ET.SubElement(case_props, "property", {"name": "requirement", "value": rid})
+        expectation = expectation_text(m)
         text = (
             f"verdict: {m.verdict.upper()}\n"
+            f"expectation: {expectation}\n"
             f"kind: {m.kind}\n"
-            f"measured: {format_value(m)}\n"
+            f"measured: {measured_text(m)}\n"
             f"limits: {format_limits(m)}\n"
             f"margin: {'n/a' if m.margin is None else f'{m.margin:.6g} {m.unit}'}\n"
             f"window: {_window_text(m)}\n"
             f"detail: {m.detail}\n"
         )
-        if m.verdict == "fail":
+        if requirements:
+            text += f"requirements: {', '.join(requirements)}\n"
+        if status == "failure":
             ET.SubElement(case, "failure", {"message": m.detail[:500], "type": "limit"}).text = text
-        elif m.verdict == "error":
+        elif status == "not as designed":
+            message = f"{expectation}: {m.detail}"[:500]
+            ET.SubElement(case, "failure", {"message": message, "type": "expectation"}).text = text
+        elif status == "error":
             ET.SubElement(case, "error", {"message": m.detail[:500], "type": "bench"}).text = text
-        elif m.verdict == "skip":
+        elif status == "skipped":
             ET.SubElement(case, "skipped", {"message": m.detail[:500]})
         ET.SubElement(case, "system-out").text = text
     out = ET.SubElement(suite, "system-out")
-    out.text = f"plan {outcome.plan.name}: {outcome.verdict.upper()}" + (
+    out.text = plan_line(outcome.plan.name, outcome.plan.expect, ms, outcome.result) + (
         f" ({outcome.error})" if outcome.error else ""
     )
     ET.SubElement(suite, "system-err").text = outcome.error or ""
@@ -145,6 +155,18 @@ def junit_xml(outcome: Outcome) -> bytes:
 
 
 # --------------------------------------------------------------------------- record
+
+
+def _measurement(m: Measurement, plan: Any) -> dict[str, Any]:
+    """A measurement as recorded: its own fields, how it stands against the plan's
+    expectation, the requirements it verifies and a step check's reading."""
+    return {
+        **m.as_dict(),
+        "status": status_of(m),
+        "expectation": expectation_text(m),
+        "requirements": list(plan.requirement_ids(m.name)),
+        **reading_extra(m),
+    }
 
 
 def build_record(outcome: Outcome, files: dict[str, Any]) -> dict[str, Any]:
@@ -199,12 +221,15 @@ def build_record(outcome: Outcome, files: dict[str, Any]) -> dict[str, Any]:
     run_info.update(outcome.info)
     return {
         "format": RECORD_FORMAT,
+        "result": outcome.result,
+        "summary": plan_line(plan.name, plan.expect, outcome.measurements, outcome.result),
         "verdict": outcome.verdict,
         "exit_code": outcome.exit_code,
         "expected_verdict": plan.expect,
         "error": outcome.error,
+        **outcome.context.record(),
         "counts": counts(outcome.measurements),
-        "measurements": [m.as_dict() for m in outcome.measurements],
+        "measurements": [_measurement(m, plan) for m in outcome.measurements],
         "plan": {
             "name": plan.name,
             "title": plan.title,
@@ -222,6 +247,8 @@ def build_record(outcome: Outcome, files: dict[str, Any]) -> dict[str, Any]:
         "run": run_info,
         "config": {
             "source": outcome.config.source,
+            "origin": outcome.config.origin,
+            "described": outcome.config.describe(),
             "toml": outcome.config.to_toml(),
             "values": outcome.config.as_dict(),
         },
@@ -488,12 +515,14 @@ def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str])
     c = record["counts"]
     rows = []
     for m in outcome.measurements:
+        status = status_of(m)
+        note = "" if m.expect is None and status == "ok" else f"<br>{e(expectation_text(m))}"
         rows.append(
             f"<tr class='{m.verdict}'><td>{e(m.name)}</td><td>{e(m.kind)}</td>"
-            f"<td>{e(format_value(m))}</td><td>{e(format_limits(m))}</td>"
+            f"<td>{e(', '.join(plan.requirement_ids(m.name)))}</td>"
+            f"<td>{e(measured_text(m))}</td><td>{e(format_limits(m))}</td>"
             f"<td>{'' if m.margin is None else e(f'{m.margin:.4g}')}</td>"
-            f"<td>{e(_window_text(m))}</td><td><b>{m.verdict.upper()}</b>"
-            f"{'' if m.expect is None else f' (plan expects {e(m.expect)})'}</td>"
+            f"<td>{e(_window_text(m))}</td><td><b>{m.verdict.upper()}</b>{note}</td>"
             f"<td>{e(m.detail)}</td></tr>"
         )
     run = record["run"]
@@ -506,7 +535,7 @@ def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str])
         ("finished (UTC)", outcome.finished_utc),
         ("wall time", f"{outcome.wall_s:.2f} s"),
         ("bench version", __version__),
-        ("config", outcome.config.source),
+        ("calibration", outcome.config.announcement().removeprefix("calibration: ")),
     ]
     if "frames" in run:
         info.append(("frames sent / received / logged", _frames_text(run["frames"])))
@@ -528,19 +557,23 @@ def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str])
     kinds = ", ".join(KINDS)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>acceptance {e(plan.name)}: {outcome.verdict.upper()}</title>",
-        f"<style>{_CSS}</style></head><body>",
+        f"<title>acceptance {e(plan.name)}: {outcome.result.upper()}</title>",
+        f"<style>{_CSS}{SIGN_OFF_CSS}</style></head><body>",
         f"<h1>Acceptance run: {e(plan.name)}</h1><p>{e(plan.title)}</p>",
-        f"<div class='banner {outcome.verdict}'>{outcome.verdict.upper()}</div>",
+        f"<div class='banner {outcome.result}'>{outcome.result.upper()}</div>",
+        f"<p><b>{e(record['summary'])}</b>; the device's verdict: "
+        f"{outcome.verdict.upper()}, the plan expects {e(plan.expect)}.</p>",
         f"<p>{c['pass']} pass, {c['warn']} warn, {c['fail']} fail, {c['error']} error, "
         f"{c['skip']} skipped.</p>",
     ]
     if outcome.error:
         parts.append(f"<p class='error'><b>The bench failed:</b> {e(outcome.error)}</p>")
     parts += [
-        "<table>",
+        dut_html(outcome.context),
+        "<h2>Run</h2><table>",
         *(f"<tr><th>{e(k)}</th><td>{e(v)}</td></tr>" for k, v in info),
-        "</table><h2>Checks</h2><table><tr><th>check</th><th>kind</th><th>measured</th>",
+        "</table><h2>Checks</h2><table><tr><th>check</th><th>kind</th><th>requirement</th>"
+        "<th>measured</th>",
         "<th>limits</th><th>margin</th><th>window</th><th>verdict</th><th>detail</th></tr>",
         *rows,
         "</table>",
@@ -558,7 +591,9 @@ def report_html(outcome: Outcome, record: dict[str, Any], plots: dict[str, str])
     parts += [
         f"<h2>Plots</h2>{imgs or '<p>no samples: nothing to plot</p>'}",
         f"<h2>Plan</h2><pre>{e(plan.text)}</pre>",
-        f"<h2>Calibration config</h2><pre>{e(outcome.config.to_toml())}</pre>",
+        f"<h2>Calibration config</h2><p>{e(outcome.config.describe())}</p>"
+        f"<pre>{e(outcome.config.to_toml())}</pre>",
+        sign_off_html(),
         f"<p><small>Check kinds: {e(kinds)}. Estimator columns: {e(est)}. "
         "Full record: <a href='record.json'>record.json</a>; CI: "
         "<a href='junit.xml'>junit.xml</a>; the run: run.mcap "

@@ -32,8 +32,8 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
+from bench.acceptance import expectation
 from bench.acceptance.checks import (
-    EXIT_CODES,
     FaultInfo,
     Measurement,
     RunData,
@@ -43,6 +43,7 @@ from bench.acceptance.checks import (
     run_check,
 )
 from bench.acceptance.plan import Plan, Step
+from bench.acceptance.signoff import RunContext, board_identity
 from bench.config import Config, load_config
 from bench.errors import BenchError, ConfigError
 from bench.events import EVENT_DTYPE, concat_events
@@ -147,6 +148,7 @@ class Options:
     say: Callable[[str], None] = lambda text: None
     plots: bool = True
     command: str = field(default_factory=lambda: " ".join(sys.argv))
+    context: RunContext = field(default_factory=RunContext)  # unit, station, operator
 
 
 @dataclass
@@ -167,10 +169,17 @@ class Outcome:
     error: str | None = None
     files: dict[str, Path] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)  # sim summary, stats, fault record
+    context: RunContext = field(default_factory=RunContext)
+
+    @property
+    def result(self) -> str:
+        """pass / fail / error: whether the run behaved as the plan designed it
+        (:mod:`bench.acceptance.expectation`); ``verdict`` is what the device did."""
+        return expectation.result(self.measurements, self.error)
 
     @property
     def exit_code(self) -> int:
-        return EXIT_CODES[self.verdict]
+        return expectation.EXIT_CODES[self.result]
 
 
 def has_live_source(args: argparse.Namespace | None) -> bool:
@@ -292,11 +301,19 @@ def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
-def run_config(plan: Plan, config_path: str | None) -> Config:
+def run_config(plan: Plan, config_path: str | None, emulate: str | None = None) -> Config:
     """--config wins (a real board's calibration sheet); else the emulated board as built
-    with the plan's [config] overlay; else the nominal values with the overlay."""
+    (``--emulate SCENARIO``'s, or the plan's own) with the plan's [config] overlay; else the
+    nominal values with the overlay."""
     if config_path:
         return load_config(config_path)
+    if emulate:
+        from bench.acceptance.plan import build_config
+        from devices.emulator import load_scenario
+
+        sc = load_scenario(emulate)
+        name = Path(sc.path).name if sc.path else str(emulate)
+        return build_config(sc, plan.config_overlay, plan.file, f"scenario {name}")
     return plan.config()
 
 
@@ -404,6 +421,11 @@ def _run_data(
     )
 
 
+def _board(config: Config, pipeline: Pipeline) -> dict[str, Any]:
+    """The board as it identified itself (its base id and last BOARD_STATUS)."""
+    return board_identity(config.base_id, pipeline.last_status, pipeline.stats.status_frames)
+
+
 def _check_log(sink: Any) -> None:
     """A run whose MCAP log failed has no record to stand on: the bench failed."""
     if getattr(sink, "error", None):
@@ -447,6 +469,7 @@ def _run_emulated(
         sink.close()
     _check_log(sink)
     info["stats"] = pipeline.stats.as_dict()
+    info["board"] = _board(config, pipeline)
     sent = _uart_sent(sim) if plan.link == "uart" else len(sim.frames)
     run = _run_data(
         collector,
@@ -551,6 +574,7 @@ def _run_live(
         raise BenchError(runner.error)
     _check_log(sink)
     info["stats"] = runner.pipeline.stats.as_dict()
+    info["board"] = _board(config, runner.pipeline)
     sent = getattr(player, "frames_sent", None) if player is not None else None
     snap = runner.snapshot(last=1)
     run = _run_data(
@@ -608,7 +632,8 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
     from bench.liveopts import open_emulator, open_live
 
     out = prepare_out_dir(opts.out_dir)
-    config = run_config(plan, opts.config_path)
+    config = run_config(plan, opts.config_path, getattr(opts.live_args, "emulate", None))
+    opts.say(config.announcement())
     live = has_live_source(opts.live_args)
     if live:
         mode = "live"
@@ -680,6 +705,7 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
         out_dir=out,
         error=error,
         info=info,
+        context=opts.context.with_board(info.get("board")),
     )
     from bench.acceptance.report import write_reports
 
