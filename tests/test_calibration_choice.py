@@ -221,7 +221,9 @@ def test_accept_says_and_records_its_calibration(
     record = json.loads((out / "record.json").read_text())
     assert record["config"]["origin"] == "scenario"
     assert record["config"]["described"] == "scenario of plan level as built"
-    assert read_metadata(out / "run.mcap")["config"]["origin"] == "scenario"
+    meta = read_metadata(out / "run.mcap")
+    assert meta["config"]["origin"] == "scenario"
+    assert meta["run"]["calibration"] == "scenario of plan level as built"
 
 
 def test_accept_on_an_emulated_board_uses_that_board_as_built(
@@ -244,3 +246,36 @@ def test_accept_on_an_emulated_board_uses_that_board_as_built(
     assert record["config"]["described"] == (
         f"scenario level3.toml as built + [config] of {plan.name}"
     )
+
+
+def test_demo_log_replays_to_the_results_shown_live(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Replaying `bench demo`'s log gave other results than the screen had shown (nominal
+    angles instead of the board's): the recorded calibration makes them identical."""
+    import time
+
+    import bench.commands.tui as tui_command
+
+    def headless(session: object) -> int:
+        session.start()  # type: ignore[attr-defined]
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            snap = session.snapshot(last=1)  # type: ignore[attr-defined]
+            if snap.extra.get("emulator_done"):
+                break
+            time.sleep(0.1)
+        session.stop()  # type: ignore[attr-defined]
+        return 0
+
+    monkeypatch.setattr(tui_command, "show", headless)
+    sc = short_level_run(tmp_path, 2.0)
+    mcap = tmp_path / "demo.mcap"
+    assert main(["demo", "--scenario", str(sc), "--speed", "4", "--mcap", str(mcap)]) == 0
+    capsys.readouterr()
+    assert read_metadata(mcap)["config"]["origin"] == "scenario"
+    assert main(["replay", str(mcap), "--compare", "-q"]) == 0  # identical to the live rows
+    assert "compare: identical" in capsys.readouterr().out
+    empty = tmp_path / "nominal.toml"
+    empty.write_text("")
+    assert main(["replay", str(mcap), "--compare", "-q", "--config", str(empty)]) == 1

@@ -357,6 +357,7 @@ def _metadata(plan: Plan, config: Config, source: str, mode: str, command: str) 
         "bench_version": __version__,
         "source": source,
         "config_source": config.source,
+        "calibration": config.describe(),
         "config_toml": config.to_toml(),
         "command": command,
         "started_utc": _now(),
