@@ -19,20 +19,17 @@ import numpy as np
 from rich import box
 from rich.table import Table
 
-from bench.acceptance.checks import Measurement, RunData, run_check
+from bench.acceptance.answers import schedule_steps
+from bench.acceptance.checks.registry import run_check
 from bench.acceptance.expectation import result, status_of
+from bench.acceptance.feeds import BATCH_FRAMES, fault_infos
+from bench.acceptance.model import Measurement, RunData
 from bench.acceptance.plan import Plan
-from bench.acceptance.runner import (
-    BATCH_FRAMES,
-    Collector,
-    count_logged_frames,
-    fault_infos,
-    schedule_steps,
-)
+from bench.acceptance.runner import Collector, count_logged_frames
 from bench.config import Config
-from bench.pipeline import Pipeline
-from bench.replay import run_steps
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
+from bench.pipeline.steps import Pipeline
+from bench.replay.run import run_steps
 
 LABEL_WIDTH = 34
 VALUE_WIDTH = 19
@@ -54,7 +51,7 @@ class Side:
 
 def replay_side(path: str | Path, config: Config, label: str) -> Side:
     """The run's raw frames through a fresh pipeline with ``config``."""
-    from devices.mcap_file import McapFrameSource
+    from bench.mcaplog.source import McapFrameSource
 
     source = McapFrameSource(path)
     collector = Collector()

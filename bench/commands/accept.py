@@ -18,8 +18,8 @@ from rich.table import Table
 from bench.errors import BenchError
 
 if TYPE_CHECKING:
+    from bench.acceptance.outcome import RunOutcome
     from bench.acceptance.plan import Plan
-    from bench.acceptance.runner import Outcome
     from bench.acceptance.signoff import RunContext
 
 _STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
@@ -123,8 +123,9 @@ def list_table() -> Table:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.answers import load_answers
     from bench.acceptance.plan import load_plan
-    from bench.acceptance.runner import Options, has_live_source, load_answers, run_plan
+    from bench.acceptance.runner import Options, has_live_source, run_plan
 
     console = Console()
     if args.list:
@@ -163,10 +164,10 @@ def run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
-def result_table(outcome: Outcome) -> Table:
+def result_table(outcome: RunOutcome) -> Table:
     from bench.acceptance.expectation import status_of
-    from bench.acceptance.measured import measured_text
-    from bench.acceptance.report import format_limits
+    from bench.acceptance.report.measured import measured_text
+    from bench.acceptance.report.text import format_limits
 
     table = Table(title=f"acceptance {outcome.plan.name}")
     table.add_column("check", style="bold")
@@ -186,7 +187,7 @@ def result_table(outcome: Outcome) -> Table:
     return table
 
 
-def print_outcome(outcome: Outcome, console: Console) -> None:
+def print_outcome(outcome: RunOutcome, console: Console) -> None:
     """The table, then one line per check that did not pass: which one and by how much."""
     from bench.acceptance.expectation import expectation_text, plan_line, status_of
 

@@ -19,8 +19,9 @@ from rich.progress import (
 from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.replay import CsvSink, replay
-from bench.summary import print_summary
+from bench.replay.run import replay
+from bench.sinks.csv import CsvSink
+from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
@@ -62,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     console = Console(stderr=True)
     if args.plan and not args.compare:
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
 
         plan = load_plan(args.plan)
     config = replay_config(args.config, args.input)
-    source = open_log(args.input)
+    source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them
         print(f"bench: {config.announcement()}", file=sys.stderr)
         hint = replay_hint(config, args.input)
@@ -130,7 +131,7 @@ def _compare(
     """Before (the recorded calibration) against after (this replay's) in one table."""
     from bench.acceptance.whatif import comparison_table, measure, replay_side
     from bench.mcaplog.compare import compare_results
-    from bench.mcaplog.reader import read_results, recorded_config
+    from bench.mcaplog.recorded import read_results, recorded_config
 
     recorded = recorded_config(args.input) or Config()
     before = replay_side(args.input, recorded, "before (recorded)")
