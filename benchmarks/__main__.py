@@ -159,6 +159,9 @@ def _kept(path: Path, selected: set[str]) -> tuple[list[Figure], list[dict[str, 
     try:
         doc = json.loads(path.read_text())
         runs = [r for r in doc.get("runs", []) if r.get("name") not in selected]
+        for r in runs:  # where and when those figures were measured
+            r.setdefault("started", doc.get("started"))
+            r.setdefault("machine", doc.get("machine"))
         keep = {r["name"] for r in runs}
         figures = [
             Figure.from_dict(d) for d in doc.get("figures", []) if _measurement_of(d) in keep
@@ -208,7 +211,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"benchmarks: {name} {kwargs} ...", file=sys.stderr, flush=True)
         t = time.monotonic()
         got = run_worker(name, kwargs, timeout if not args.quick else timeout / 2)
-        runs.append({"name": name, "kwargs": kwargs, "seconds": round(time.monotonic() - t, 1)})
+        runs.append(
+            {
+                "name": name,
+                "kwargs": kwargs,
+                "seconds": round(time.monotonic() - t, 1),
+                "started": started,
+                "machine": machine,
+            }
+        )
         figures += got
     elapsed = time.monotonic() - t0
     machine["loadavg_at_end"] = [round(x, 2) for x in os.getloadavg()]

@@ -37,10 +37,11 @@ SCENARIOS: tuple[str, ...] = (
     "channel_faults",
     "wheel_slide",
     "speed_dropout",
+    "demo",
 )
 """The shipped realistic scenarios (devices/scenarios/), in table order."""
 
-POOR_ODOMETER = frozenset({"wheel_slide", "speed_dropout"})
+POOR_ODOMETER = frozenset({"wheel_slide", "speed_dropout", "demo"})
 """Scenarios whose odometer is poor or absent for a while: only 'wrong' has a target there."""
 
 WRONG_PERMIL = 1.0
@@ -276,7 +277,7 @@ def markdown(figures: list[Figure]) -> str:
         cols = header()
         lines.append("| " + " | ".join(cols) + " |")
         lines.append("|---|" + "---:|" * (len(cols) - 1))
-        lines += ["| " + " | ".join(r) + " |" for r in rows]
+        lines += ["| " + " | ".join(c.replace("|", "\\|") for c in r) + " |" for r in rows]
         lines.append("")
     if lines:
         lines.append(targets_line())
