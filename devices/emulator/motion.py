@@ -92,11 +92,13 @@ def _phase(b: _Builder, target: float, duration: float, jerk: float, reverse: bo
     """Add one phase (jerk = inf: acceleration steps). Works in the direction of motion."""
     t_end = b.t + duration
     stopping = False
+    s = -1.0 if b.v < 0.0 else 1.0  # the way it runs; a train at rest counts as forwards
     for _ in range(16):  # a phase is at most ramp, hold, ease-off, rest
         rem = t_end - b.t
         if rem <= _EPS:
             break
-        s = -1.0 if b.v < 0.0 else 1.0  # a train at rest counts as running forwards
+        if reverse:
+            s = -1.0 if b.v < 0.0 else 1.0
         an, vn, tn = s * b.a, s * b.v, s * target
         if not reverse:
             if vn <= 0.0 and an <= 0.0 and tn <= 0.0:  # standing, asked to brake: stays
@@ -112,14 +114,15 @@ def _phase(b: _Builder, target: float, duration: float, jerk: float, reverse: bo
                     break
                 b.run(tau, s * jerk)
                 b.stop()
-                stopping = False
-                continue
+                b.run(t_end - b.t, 0.0)  # stopped: stands until the phase ends
+                break
             if an < 0.0 and not finite and an == tn:
                 tau = vn / -an
                 if tau < rem:
                     b.run(tau, 0.0)
                     b.stop()
-                    continue
+                    b.run(t_end - b.t, 0.0)
+                    break
         if an != tn:
             if not math.isfinite(jerk):
                 b.a = target
