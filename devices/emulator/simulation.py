@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.errors import BenchError
 from devices.emulator import faults as fx
 from devices.emulator.board import FrameSet, adc_frames, merge, speed_frames, status_frames
 from devices.emulator.motion import scenario_motion
@@ -29,6 +28,7 @@ from devices.emulator.world import (
     sensor_output,
     specific_force,
 )
+from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import (
     FRAME_DLC,
