@@ -2,10 +2,10 @@
 the emulator's truth, per shipped realistic scenario.
 
 Each scenario is simulated (devices.emulator), and its CAN frames go through the bench's own
-replay pipeline (:func:`bench.replay.run_steps` over a :class:`bench.pipeline.Pipeline`, in
-replay-sized batches: the code ``bench replay`` runs) with the board's as-built calibration
-(:func:`devices.emulator.calibration_toml`). Only the few result columns needed are kept per
-step. Per method:
+replay pipeline (:func:`bench.replay.run.run_steps` over a
+:class:`bench.pipeline.steps.Pipeline`, in replay-sized batches: the code ``bench replay``
+runs) with the board's as-built calibration (:func:`devices.emulator.calibration_toml`).
+Only the few result columns needed are kept per step. Per method:
 
 * samples: every sampling instant of the run (the truth's rows), lost or not;
 * given: the method gives a value (reference: ``valid``; estimator: ``gradient_signed``
@@ -97,8 +97,8 @@ def _batches(frames: np.ndarray) -> Iterator[Any]:
 
 def replay_run(name: str) -> Run:
     """Emulate a scenario and replay its frames through the bench's pipeline."""
-    from bench.pipeline import Pipeline
-    from bench.replay import run_steps
+    from bench.pipeline.steps import Pipeline
+    from bench.replay.run import run_steps
 
     sim, config = emulate(name)
     counter0 = int(sim.truth["counter"][0]) if len(sim.truth) else 0

@@ -15,8 +15,8 @@ from textwrap import dedent
 import numpy as np
 import pytest
 
-from bench.errors import ConfigError
 from devices.emulator import calibration_toml, parse_scenario, simulate
+from devices.errors import ConfigError
 from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
 from protocol.records import AdcSample, BoardStatus, SpeedRef
