@@ -6,9 +6,9 @@ Two checks, both of which the old behaviour (the new file opened under the lock 
 processing thread writes through) fails by a wide margin: results keep being delivered
 while the new file opens (it used to deliver none for the 0.3-3 s the writer process took
 to start), and the latency p99 over the seconds after the start stays bounded (it used to
-be the whole start time, hundreds of ms). The bound is generous -- 100 ms, or three times
-the p99 before the toggle plus 50 ms on a machine too loaded for that -- so a busy 2-core
-CI host cannot make it flake, while the bug it guards against cannot pass it.
+be the whole start time, hundreds of ms). The bound is generous -- 100 ms, or half the start
+time on a machine so loaded that starting takes seconds -- so a busy 2-core CI host cannot
+make it flake, while the bug it guards against cannot pass it.
 """
 
 from __future__ import annotations
@@ -27,6 +27,9 @@ def test_latency_stays_bounded_after_recording_is_toggled() -> None:
         f"{during} results delivered during the {took:.2f} s the new file took to open "
         f"(longest wait {gap:.2f} s)\n{r.report()}"
     )
-    before_p99, after_p99 = r.before[1], r.after[0][1]
-    bound = max(100.0, 3.0 * before_p99 + 50.0)
+    # the bug made p99 the whole start time (results waited that long); now it has
+    # nothing to do with it: 100 ms, or half the start time on a machine slow enough to
+    # make the start take seconds (load average 20 on 2 cores: start 3.3 s, p99 0.76 s)
+    after_p99 = r.after[0][1]
+    bound = max(100.0, 500.0 * took)
     assert after_p99 < bound, r.report()
