@@ -14,6 +14,7 @@ from pathlib import Path
 import devices
 from bench.config_choice import announce, live_config, scenario_config
 from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
+from bench.mcaplog.foxglove_stream import add_foxglove_arguments
 
 __all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
 
@@ -23,9 +24,10 @@ DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.to
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="the TUI on the built-in virtual board: a grade profile, faults coming and going",
+        help="the TUI on the built-in virtual board: a metro service, faults coming and going",
         description="Open the bench TUI on the in-process virtual board playing the demo "
-        "scenario (10 min over hills with faults coming and going), logging to logs/ like "
+        "scenario (9 min of a metro service over hills with faults coming and going), logging "
+        "to logs/ like "
         "`bench run`. Keys: p pause display, r record, m mark, +/- tolerance, q quit.",
     )
     p.add_argument(
@@ -41,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--config", help="calibration config (TOML); default: the scenario board's calibration"
     )
     add_log_arguments(p)
+    add_foxglove_arguments(p)
     p.set_defaults(func=run)
 
 
