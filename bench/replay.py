@@ -56,25 +56,3 @@ def replay(
             on_progress(source.position())
     results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
     return ReplayOutcome(pipeline, results, notices)
-
-
-class CsvSink:
-    """Adapts bench.results.CsvWriter to the Sink contract."""
-
-    def __init__(self, path: str) -> None:
-        from bench.results import CsvWriter
-
-        self._writer = CsvWriter(path)
-
-    def write(self, step: StepOutput) -> None:
-        self._writer.write(step.results)
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        self._writer.close()
-
-    @property
-    def rows(self) -> int:
-        return self._writer.rows

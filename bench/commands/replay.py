@@ -1,9 +1,9 @@
-"""`bench replay INPUT`: re-run fusion over a recorded log, write the per-sample CSV."""
+"""`bench replay INPUT`: re-run fusion over a recorded log, write the per-sample CSV/Parquet."""
 
 from __future__ import annotations
 
 import argparse
-import sys
+import contextlib
 
 from rich.console import Console
 from rich.markup import escape
@@ -17,7 +17,8 @@ from rich.progress import (
 
 from bench.config import load_config
 from bench.errors import BenchError
-from bench.replay import CsvSink, replay
+from bench.outpaths import check_output_file
+from bench.replay import replay
 from bench.summary import print_summary
 
 MAX_NOTICES = 20
@@ -42,6 +43,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
     )
     p.add_argument(
+        "--parquet",
+        metavar="OUT",
+        help="write the per-sample results as Parquet (zstd; units and calibration in the schema)",
+    )
+    p.add_argument(
         "--compare",
         action="store_true",
         help="(MCAP input) report where the recomputed results differ from the recorded ones",
@@ -51,9 +57,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.table_sinks import csv_sink, parquet_sink
     from devices.files import open_log
 
     console = Console(stderr=True)
+    if args.csv:
+        check_output_file(args.csv, "CSV")
+    if args.parquet:
+        check_output_file(args.parquet, "Parquet file")
     config = load_config(args.config)
     if args.config is None and str(args.input).lower().endswith(".mcap"):
         from bench.mcaplog.reader import recorded_config
@@ -65,8 +76,15 @@ def run(args: argparse.Namespace) -> int:
                 console.print(f"using the config recorded in the log ({recorded.source})")
     source = open_log(args.input)
     sinks = []
-    if args.csv:
-        sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]
+    try:
+        if args.csv:
+            sinks.append(csv_sink(args.csv))
+        if args.parquet:
+            sinks.append(parquet_sink(args.parquet, results_metadata(config, args.input)))
+    except BaseException:
+        _close_all(sinks)
+        source.close()
+        raise
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
     collect = bool(args.compare)
@@ -90,9 +108,13 @@ def run(args: argparse.Namespace) -> int:
                 )
         else:
             outcome = replay(source, config, sinks, collect=collect)
-    finally:
+    except BaseException:
+        _close_all(sinks)  # the first failure is the one to tell
+        raise
+    else:
         for sink in sinks:
-            sink.close()
+            sink.close()  # raises a write failure as a one-line error
+    finally:
         source.close()
     shown = outcome.notices[:MAX_NOTICES]
     for notice in shown:
@@ -114,3 +136,23 @@ def run(args: argparse.Namespace) -> int:
         print_comparison(report, console)
         return 0 if report.identical else 1
     return 0
+
+
+def _close_all(sinks: list) -> None:
+    """Close the sinks after another failure, keeping quiet about their own."""
+    for sink in sinks:
+        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
+            sink.close()
+
+
+def results_metadata(config: object, source: str) -> dict[str, str]:
+    """File-level metadata of a results Parquet file: the calibration (as TOML, as `--config`
+    reads it) and where it came from, the source log, the bench version."""
+    from bench import __version__
+
+    return {
+        "bench.version": __version__,
+        "bench.source": str(source),
+        "bench.calibration": config.to_toml(),  # type: ignore[attr-defined]
+        "bench.calibration_source": str(getattr(config, "source", "")),
+    }

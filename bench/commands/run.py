@@ -14,7 +14,7 @@ from typing import Any
 from bench.config import load_config
 from bench.live import LiveRunner, Snapshot
 from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
-from bench.replay import CsvSink
+from bench.outpaths import check_output_file
 from bench.summary import print_summary
 
 
@@ -62,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
 
     old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
+        if args.csv:
+            check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
         config = load_config(args.config)
         setup = open_live(args)
     except BaseException:
@@ -82,7 +84,17 @@ def run(args: argparse.Namespace) -> int:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)
     if args.csv:
-        sinks.append(CsvSink(args.csv))
+        from bench.table_sinks import csv_sink
+
+        try:
+            sinks.append(csv_sink(args.csv, live=True))
+        except BaseException:
+            for sink in sinks:
+                sink.close()
+            setup.close()
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            raise
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()
