@@ -75,10 +75,11 @@ class CsvFile:
         target: str | Path | pa.NativeFile,
         schema: pa.Schema = RESULTS.schema,
         *,
-        opener: Callable[[str | Path], pa.NativeFile] = open_stream,
+        opener: Callable[[str | Path], pa.NativeFile] | None = None,
     ) -> None:
         self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
         self._own = not isinstance(target, pa.NativeFile)
+        opener = opener or open_stream  # looked up now: a test may stand in a failing stream
         self._out = opener(target) if self._own else target  # type: ignore[arg-type]
         self._schema = _csv_schema(schema)
         self._out.write((",".join(schema.names) + "\n").encode())
@@ -108,10 +109,11 @@ class ParquetFile:
         schema: pa.Schema = RESULTS.schema,
         metadata: dict[str, str] | None = None,
         *,
-        opener: Callable[[str | Path], pa.NativeFile] = open_stream,
+        opener: Callable[[str | Path], pa.NativeFile] | None = None,
     ) -> None:
         self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
         self._own = not isinstance(target, pa.NativeFile)
+        opener = opener or open_stream  # looked up now: a test may stand in a failing stream
         self._out = opener(target) if self._own else target  # type: ignore[arg-type]
         if metadata:
             schema = schema.with_metadata({**(schema.metadata or {}), **metadata})
@@ -173,6 +175,7 @@ class TableSink:
         self._lost_put = 0  # rows refused by put() (counted by the producer)
         self._lost_write = 0  # rows the writer could not write (counted by the writer)
         self.error: str | None = None
+        self.errno = 0  # of the first failure, when it was an OSError
         self.broken_pipe = False
         self._cpus = cpus
         self._pending: list[np.ndarray] = []
@@ -290,6 +293,7 @@ class TableSink:
             self.broken_pipe = True
         if self.error is None:
             why = describe_os_error(exc) if isinstance(exc, OSError) else repr(exc)
+            self.errno = (exc.errno or 0) if isinstance(exc, OSError) else 0
             self.error = f"{self.path}: cannot write the {self.kind}: {why}"
         with self._cond:
             self._cond.notify_all()
@@ -315,7 +319,7 @@ def csv_sink(
 
         cpus = other_cpus()
     return TableSink(
-        _open(CsvFile, target, **kw),
+        _open(CsvFile, target, "CSV", **kw),
         live=live,
         raise_errors=not live if raise_errors is None else raise_errors,
         cpus=cpus,
@@ -329,17 +333,17 @@ def parquet_sink(
     """The results Parquet file of a replay, path checked first."""
     check_output_file(target, "Parquet file")
     return TableSink(
-        _open(ParquetFile, target, metadata=metadata, **kw),
+        _open(ParquetFile, target, "Parquet file", metadata=metadata, **kw),
         chunk_rows=PARQUET_ROW_GROUP,
         raise_errors=True,
         kind="Parquet file",
     )
 
 
-def _open(cls: type, target: str | Path, **kw: Any) -> Any:
-    from bench.outpaths import write_error
+def _open(cls: type, target: str | Path, what: str, **kw: Any) -> Any:
+    from bench.errors import BenchError
 
     try:
         return cls(target, **kw)
     except OSError as exc:
-        raise write_error(target, exc) from None
+        raise BenchError(f"{target}: cannot write the {what}: {describe_os_error(exc)}") from None

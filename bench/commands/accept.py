@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.errors import BenchError
+from bench.outpaths import check_output_dir, describe_os_error
 
 if TYPE_CHECKING:
     from bench.acceptance.runner import Outcome
@@ -125,8 +126,14 @@ def run(args: argparse.Namespace) -> int:
         say=lambda text: err.print(f"bench: {text}", highlight=False),
         plots=not args.no_plots,
     )
+    check_output_dir(args.out, "acceptance results")
     err.print(f"bench: acceptance plan {plan.name}: {plan.title}", highlight=False)
-    outcome = run_plan(plan, opts)
+    try:
+        outcome = run_plan(plan, opts)
+    except OSError as exc:  # a full disk or a vanished folder: an error, not a fail verdict
+        where = exc.filename or args.out
+        why = describe_os_error(exc)  # exit 2; a half-written junit.xml is not valid XML
+        raise BenchError(f"{where}: cannot write the acceptance results: {why}") from None
     print_outcome(outcome, console)
     if outcome.error:
         print(f"bench: error: {outcome.error}", file=sys.stderr)

@@ -44,6 +44,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     rec = ""
     if s.recording:
         rec = f" log {s.recording.get('frames', 0)}f"
+    if s.output_errors:
+        rec += " CSV FAILED"
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
@@ -152,4 +154,19 @@ def _report(
         print(f"bench: log written: {recording.path}", file=sys.stderr)
     if runner.error:
         print(f"bench: error: {runner.error}", file=sys.stderr)
-    return 1 if (runner.error or log_error) else 0
+    for line in runner.output_errors:
+        print(f"bench: error: {line}", file=sys.stderr)
+    for sink in runner_sinks(runner):
+        if getattr(sink, "rows_lost", 0):
+            print(
+                f"bench: error: {sink.path}: {sink.rows_lost} result rows not written "
+                f"({sink.rows} written)",
+                file=sys.stderr,
+            )
+    lost = any(getattr(s, "rows_lost", 0) for s in runner_sinks(runner))
+    return 1 if (runner.error or log_error or runner.output_errors or lost) else 0
+
+
+def runner_sinks(runner: LiveRunner) -> list[Any]:
+    """The run's secondary outputs (what is not the MCAP recording)."""
+    return [s for s in runner.sinks if s is not runner.recording]
