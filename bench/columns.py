@@ -143,13 +143,16 @@ class Layout:
         self.utc_after = utc_after  # the column the UTC timestamp goes beside
         self.utc_from = utc_from
         fields = []
+        self.aligned: list[Column | None] = []  # per schema field; None for the UTC column
         for col in self.columns:
+            self.aligned.append(col)
             meta = {"unit": col.unit, "description": col.description}
             kind = _arrow_type(dtype.fields[col.field][0])  # type: ignore[index]
             fields.append(pa.field(col.name, kind, metadata=meta))
             if col.name == utc_after:
                 meta = {"unit": "UTC", "description": "receive time as UTC, where it is wall time"}
                 fields.append(pa.field(UTC_COLUMN, pa.timestamp("us", tz="UTC"), metadata=meta))
+                self.aligned.append(None)
         self.schema = pa.schema(fields, metadata=metadata)
 
     def with_metadata(self, metadata: dict[str, str]) -> Layout:
@@ -203,8 +206,20 @@ def utc_array(t: np.ndarray) -> pa.Array:
 
 
 RESULTS = Layout(RESULT_DTYPE, RESULT_FIELDS, utc_after="time_s")
-"""The results' columns: what `bench replay --csv/--parquet`, a live run's CSV and
+"""The results' columns: what `bench replay --parquet`, `bench log export --parquet` and
 `bench fleet`'s dataset hold."""
+
+CSV_LEFT_OUT = frozenset(
+    {"t", "ticks", "seq", "code", "status", "present", "gradient_ls", "u", "w"}
+)
+"""Result fields the CSV leaves out (raw codes and the estimator's internals: in the Parquet
+file); every other field, new ones included, is a CSV column."""
+CSV_SCHEMA = pa.schema(
+    [f for f, c in zip(RESULTS.schema, RESULTS.aligned, strict=True)
+     if c is None or c.field not in CSV_LEFT_OUT],
+    metadata=RESULTS.schema.metadata,
+)  # fmt: skip
+"""The results CSV's columns (in the Parquet file's order)."""
 EVENTS = Layout(EVENT_DTYPE, EVENT_FIELDS, utc_after="receive_time_s")
 
 

@@ -260,11 +260,21 @@ class LiveRunner:
         finally:
             with self._lock:
                 sinks = list(self._sinks)
+            # secondary outputs first: a failure they find while finishing (the last rows,
+            # a full disk) still reaches the MCAP log as an event
+            sinks.sort(key=lambda s: s is self.recording)
             for sink in sinks:
+                if sink is self.recording and self._carry_events:
+                    with contextlib.suppress(Exception):
+                        sink.write(StepOutput(events=np.concatenate(self._carry_events)))
+                    self._carry_events = []
                 try:
                     sink.close()
                 except Exception as exc:  # a failing sink must not hide the others
                     self.error = f"closing {type(sink).__name__} failed: {exc!r}"
+                error = getattr(sink, "error", None)
+                if error and id(sink) not in self._failed and sink is not self.recording:
+                    self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
             self.finished.set()
 
     def _deliver(self, step: StepOutput) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 import threading
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,7 +28,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from bench.columns import RESULTS, Layout
+from bench.columns import CSV_SCHEMA, RESULTS, Layout
 from bench.outpaths import STDOUT, check_output_file, describe_os_error
 
 CSV_CHUNK_ROWS = 65_536
@@ -65,15 +66,21 @@ class TableFile(Protocol):
     def close(self) -> None: ...
 
 
+PARALLEL_ROWS = 8192
+"""Chunks of at least this many rows have their columns turned into text by two threads
+(pyarrow's cast runs without the GIL): text is most of a CSV's cost."""
+
+
 class CsvFile:
-    """A CSV file of one layout: a plain header line (the column names, each ending in its
-    unit), then pyarrow's CSV writer: floats in shortest round-trip form, NaN/null as an
-    empty cell, integers as integers, booleans as 0/1."""
+    """A CSV file of ``schema``'s columns (tables written to it may have more): a plain
+    header line (the column names, each ending in its unit), then pyarrow's CSV writer:
+    floats in shortest round-trip form, NaN/null as an empty cell, integers as integers,
+    booleans as 0/1."""
 
     def __init__(
         self,
         target: str | Path | pa.NativeFile,
-        schema: pa.Schema = RESULTS.schema,
+        schema: pa.Schema = CSV_SCHEMA,
         *,
         opener: Callable[[str | Path], pa.NativeFile] | None = None,
     ) -> None:
@@ -83,13 +90,24 @@ class CsvFile:
         self._out = opener(target) if self._own else target  # type: ignore[arg-type]
         self._schema = _csv_schema(schema)
         self._out.write((",".join(schema.names) + "\n").encode())
+        self._text_schema = pa.schema([pa.field(f.name, pa.string()) for f in self._schema])
         options = pa_csv.WriteOptions(include_header=False, quoting_style="none")
-        self._writer = pa_csv.CSVWriter(self._out, self._schema, write_options=options)
+        self._writer = pa_csv.CSVWriter(self._out, self._text_schema, write_options=options)
+        self._pool: ThreadPoolExecutor | None = None
 
     def write(self, table: pa.Table) -> None:
-        self._writer.write_table(table.cast(self._schema))
+        table = table.select(self._schema.names).cast(self._schema)
+        if table.num_rows >= PARALLEL_ROWS:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(2, thread_name_prefix="csv text")
+            text = list(self._pool.map(lambda c: c.cast(pa.string()), table.columns))
+        else:
+            text = [c.cast(pa.string()) for c in table.columns]
+        self._writer.write_table(pa.Table.from_arrays(text, schema=self._text_schema))
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
         try:
             self._writer.close()
         finally:
