@@ -36,6 +36,9 @@ CSV_CHUNK_ROWS = 65_536
 PARQUET_ROW_GROUP = 262_144
 """Rows per Parquet row group: large enough for zstd and column statistics to pay off,
 small enough that a writer holds ~60 MB at most."""
+TAKE_ROWS = 32_768
+"""A replay hands rows to the writer in about this many at a time (and waits when twice as
+many are queued): the bound on the results a replay holds besides one chunk."""
 LIVE_INTERVAL_S = 0.5
 """A live run's CSV is written this often: the writer wakes on a timer, not per step, so it
 never takes the GIL between the acquisition and processing threads' hand-offs."""
@@ -185,8 +188,9 @@ class TableSink:
         self.layout = layout
         self.live = live
         self.chunk_rows = chunk_rows
+        self.take_rows = min(chunk_rows, TAKE_ROWS)
         self.max_pending_rows = max_pending_rows or (
-            LIVE_MAX_PENDING_ROWS if live else 2 * chunk_rows
+            LIVE_MAX_PENDING_ROWS if live else 2 * self.take_rows
         )
         self.raise_errors = raise_errors
         self.rows = 0  # rows written
@@ -229,7 +233,7 @@ class TableSink:
                     self._cond.wait()
             self._pending.append(rows)
             self._pending_rows += len(rows)
-            if not self.live and self._pending_rows >= self.chunk_rows:
+            if not self.live and self._pending_rows >= self.take_rows:
                 self._cond.notify_all()
         self._raise()
 
@@ -254,40 +258,45 @@ class TableSink:
 
     # -- the writer thread -------------------------------------------------------------------
     def _take(self) -> tuple[list[np.ndarray], bool]:
-        """Wait for work; returns the rows to write now and whether this is the end."""
+        """Wait for work; returns the rows to convert now and whether this is the end."""
         with self._cond:
             if self.live:
                 if not self._closing:
                     self._cond.wait(LIVE_INTERVAL_S)
             else:
-                while self._pending_rows < self.chunk_rows and not self._closing:
+                while self._pending_rows < self.take_rows and not self._closing:
                     self._cond.wait()
             parts, self._pending, self._pending_rows = self._pending, [], 0
             self._cond.notify_all()  # a waiting producer may go on
             return parts, self._closing
 
     def _run(self) -> None:
+        """Rows become Arrow batches as they arrive (as compact as the numpy rows, so a
+        chunk waiting for its row group costs one copy of it); whole chunks are written."""
         if self._cpus:
             from bench.cpu_placement import pin_thread
 
             pin_thread(self._cpus)
-        carry: np.ndarray | None = None  # rows short of a whole chunk (replay)
+        buffered: list[pa.RecordBatch] = []
+        n_buffered = 0
         while True:
             parts, end = self._take()
             if self.error is not None:
-                self._lost_write += sum(len(p) for p in parts)
+                self._lost_write += sum(len(p) for p in parts) + n_buffered
+                buffered, n_buffered = [], 0
             else:
-                if carry is not None:
-                    parts.insert(0, carry)
-                    carry = None
-                if parts:
-                    rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
-                    whole = len(rows) // self.chunk_rows * self.chunk_rows
-                    cut = len(rows) if (end or self.live) else whole
-                    if cut < len(rows):
-                        carry = rows[cut:]
-                    for i in range(0, cut, self.chunk_rows):
-                        self._write(rows[i : min(cut, i + self.chunk_rows)])
+                for rows in parts:
+                    try:
+                        buffered.append(self.layout.batch(rows))
+                        n_buffered += len(rows)
+                    except Exception as exc:
+                        self._fail(exc, len(rows))
+                while n_buffered >= self.chunk_rows or (n_buffered and (end or self.live)):
+                    table = pa.Table.from_batches(buffered)
+                    take = min(self.chunk_rows, n_buffered)
+                    self._write(table.slice(0, take))
+                    rest = table.slice(take)
+                    buffered, n_buffered = rest.to_batches(), rest.num_rows
             if end:
                 break
         try:
@@ -295,15 +304,15 @@ class TableSink:
         except Exception as exc:  # the last bytes and the footer can fail too
             self._fail(exc, 0)
 
-    def _write(self, rows: np.ndarray) -> None:
+    def _write(self, table: pa.Table) -> None:
         if self.error is not None:
-            self._lost_write += len(rows)
+            self._lost_write += table.num_rows
             return
         try:
-            self.file.write(pa.Table.from_batches([self.layout.batch(rows)]))
-            self.rows += len(rows)
+            self.file.write(table)
+            self.rows += table.num_rows
         except Exception as exc:
-            self._fail(exc, len(rows))
+            self._fail(exc, table.num_rows)
 
     def _fail(self, exc: Exception, rows: int) -> None:
         self._lost_write += rows
