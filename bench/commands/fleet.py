@@ -49,7 +49,9 @@ def run(args: argparse.Namespace) -> int:
     if not paths:
         raise BenchError(f"no logs match {' '.join(args.logs)}")
     check_output_dir(args.out, "fleet output")
-    config_toml = load_config(args.config).to_toml() if args.config else None
+    config_toml = None
+    if args.config:  # validated here, sent to the workers as text (they may not see the file)
+        config_toml = f"_path = {str(args.config)!r}\n" + load_config(args.config).to_toml()
     console = Console(stderr=True)
     outcome = run_fleet(
         paths,

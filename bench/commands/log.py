@@ -202,6 +202,7 @@ def export_results(
         else:
             from devices.mcap_file import McapFrameSource
 
+            print(f"bench: {config.announcement()}", file=sys.stderr)
             pipe = Pipeline(config)
             source = McapFrameSource(lg.path)
             try:

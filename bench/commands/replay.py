@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
 
 from rich.console import Console
 from rich.markup import escape
@@ -15,7 +16,7 @@ from rich.progress import (
     TransferSpeedColumn,
 )
 
-from bench.config import load_config
+from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.outpaths import check_output_file
 from bench.replay import replay
@@ -37,7 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--config",
         help="calibration config (TOML); default: the one recorded in an MCAP log, "
-        "else the ICD's nominal values",
+        "else the ICD's nominal values (for an emulator .log: the sheet `bench emulate "
+        "--calibration-out` wrote)",
     )
     p.add_argument(
         "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
@@ -65,16 +67,13 @@ def run(args: argparse.Namespace) -> int:
         check_output_file(args.csv, "CSV")
     if args.parquet:
         check_output_file(args.parquet, "Parquet file")
-    config = load_config(args.config)
-    if args.config is None and str(args.input).lower().endswith(".mcap"):
-        from bench.mcaplog.reader import recorded_config
-
-        recorded = recorded_config(args.input)
-        if recorded is not None:
-            config = recorded
-            if not args.quiet:
-                console.print(f"using the config recorded in the log ({recorded.source})")
+    config = replay_config(args.config, args.input)
     source = open_log(args.input)
+    if not args.quiet:  # plain lines: a console width must not break them
+        print(f"bench: {config.announcement()}", file=sys.stderr)
+        hint = replay_hint(config, args.input)
+        if hint:
+            print(f"bench: {hint}", file=sys.stderr)
     sinks = []
     try:
         if args.csv:
@@ -154,5 +153,5 @@ def results_metadata(config: object, source: str) -> dict[str, str]:
         "bench.version": __version__,
         "bench.source": str(source),
         "bench.calibration": config.to_toml(),  # type: ignore[attr-defined]
-        "bench.calibration_source": str(getattr(config, "source", "")),
+        "bench.calibration_source": config.describe(),  # type: ignore[attr-defined]
     }

@@ -11,7 +11,7 @@ import time
 from types import FrameType
 from typing import Any
 
-from bench.config import load_config
+from bench.config_choice import announce, live_config
 from bench.live import LiveRunner, Snapshot
 from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
 from bench.outpaths import check_output_file
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.csv:
             check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
-        config = load_config(args.config)
+        config = live_config(args.config, getattr(args, "emulate", None))
         setup = open_live(args)
     except BaseException:
         for sig, handler in old_handlers.items():
@@ -82,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         for sig, handler in old_handlers.items():
             signal.signal(sig, handler)
         raise
+    if not args.quiet:
+        announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
     if recording is not None:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)

@@ -96,24 +96,20 @@ _CONFIG_TOML: dict[str, Any] = {}
 
 
 def _config_for(path: str, config_toml: str | None) -> Any:
-    """The calibration: the one given (as TOML), else the one recorded in an MCAP log, else
-    the ICD's nominal values (what `bench replay` uses)."""
+    """The calibration: the one given (as TOML), else what `bench replay` would use (an MCAP
+    log's recorded one, else nominal: bench.config_choice.replay_config)."""
     import tomllib
 
-    from bench.config import config_from_dict, load_config
+    from bench.config import config_from_dict
+    from bench.config_choice import replay_config
 
-    if config_toml is not None:
-        key = config_toml
-        if key not in _CONFIG_TOML:
-            _CONFIG_TOML[key] = config_from_dict(tomllib.loads(config_toml), source="--config")
-        return _CONFIG_TOML[key]
-    if path.lower().endswith(".mcap"):
-        from bench.mcaplog.reader import recorded_config
-
-        recorded = recorded_config(path)
-        if recorded is not None:
-            return recorded
-    return load_config(None)
+    if config_toml is None:
+        return replay_config(None, path)
+    if config_toml not in _CONFIG_TOML:
+        data = tomllib.loads(config_toml)
+        name = data.pop("_path", "--config")  # the client's file name, for the record
+        _CONFIG_TOML[config_toml] = config_from_dict(data, source=name, path=name)
+    return _CONFIG_TOML[config_toml]
 
 
 def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
@@ -140,7 +136,7 @@ def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, 
         source.close()
     row = summary_row(outcome.pipeline.stats, summary)
     row["calibration"] = config.to_toml()
-    row["calibration_source"] = str(config.source)
+    row["calibration_source"] = config.describe()
     row["result_rows"] = out.rows
     return row
 
