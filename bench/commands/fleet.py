@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 
 from rich.console import Console
 
@@ -51,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(args.out, "fleet output")
     config_toml = None
     if args.config:  # validated here, sent to the workers as text (they may not see the file)
-        config_toml = f"_path = {str(args.config)!r}\n" + load_config(args.config).to_toml()
+        name = json.dumps(str(args.config))  # a TOML basic string
+        config_toml = f"_path = {name}\n" + load_config(args.config).to_toml()
     console = Console(stderr=True)
     outcome = run_fleet(
         paths,
