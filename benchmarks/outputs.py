@@ -1,8 +1,8 @@
 """Memory of a replay writing CSV and Parquet as the log grows, and `bench fleet`'s speed-up.
 
 * Peak RSS: ``bench replay LOG --csv OUT --parquet OUT`` in a fresh process per log size
-  (1 M and 10 M frames of the 1 kHz board by default); the process reports its own
-  ``ru_maxrss`` at the end. Flat means the largest is within 1.5x of the smallest (issue 17:
+  (1 M and 10 M frames of the 1 kHz board by default); the process reports its own peak
+  (``VmHWM``) at the end. Flat means the largest is within 1.5x of the smallest (issue 17:
   a replay never holds all its results at once).
 * Fleet: 20 emulated candump logs replayed by ``run_fleet`` on a LocalCluster of 1 and of 2
   worker processes; the figure is the time from the first task submitted to the last row
@@ -24,11 +24,14 @@ from benchmarks.common import ROOT, Figure, frames_for
 FLAT_TARGET = 1.5
 
 _CHILD = """
-import json, resource, sys
+import json, sys
 from bench.cli import main
 code = main(["replay", sys.argv[1], "--csv", sys.argv[2], "--parquet", sys.argv[3], "-q"])
-print(json.dumps({"code": code, "maxrss_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}))
+hwm = [line for line in open("/proc/self/status") if line.startswith("VmHWM:")]
+print(json.dumps({"code": code, "maxrss_kb": int(hwm[0].split()[1])}))
 """
+"""The measured process's own peak (VmHWM: of its address space since exec; ru_maxrss would
+also count the benchmark parent's memory, which Linux carries across fork and exec)."""
 
 
 def _write_log(path: Path, n_frames: int) -> None:
