@@ -211,3 +211,25 @@ def test_parquet_row_groups_are_bounded(tmp_path):
     f = pq.ParquetFile(out)
     assert [f.metadata.row_group(i).num_rows for i in range(f.num_row_groups)] == [1000, 1000, 500]
     assert f.read().column("counter").to_pylist() == list(range(2500))
+
+
+def test_large_chunks_formatted_by_two_threads_are_exact_too():
+    """Chunks of PARALLEL_ROWS or more take the two-thread path: the same exact text."""
+    from bench.table_sinks import PARALLEL_ROWS
+
+    rng = np.random.default_rng(3)
+    n = PARALLEL_ROWS * 2 + 7
+    bits = rng.integers(0, 2**64, size=n, dtype=np.uint64)
+    x = bits.view(np.float64)
+    x = x[np.isfinite(x)]
+    rows = np.zeros(len(x), dtype=RESULT_DTYPE)
+    rows["residual"] = x
+    rows["n"] = np.arange(len(x))
+    out = pa.BufferOutputStream()
+    f = CsvFile(out)
+    f.write(pa.Table.from_batches([RESULTS.batch(rows)]))
+    f.close()
+    got = list(csv.DictReader(io.StringIO(out.getvalue().to_pybytes().decode())))
+    assert [int(r["counter"]) for r in got] == list(range(len(x)))
+    back = np.array([float(r["residual_mps2"]) for r in got])
+    assert back.view(np.uint64).tolist() == x.view(np.uint64).tolist()
