@@ -3,7 +3,7 @@
 All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
 
 * The bench figure is the whole ``bench replay`` path without an output file:
-  ``replay(open_log(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
+  ``replay(open_replay(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
   statistics. With the results CSV and with the Parquet file (pyarrow, in a writer thread
   of their own) it is reported separately (``replay candump + CSV``, ``+ Parquet``), against
   the same LogReader anchor: issue 17's target is the whole replay + CSV in <= 1/3 of the
@@ -12,7 +12,7 @@ All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
   ``for msg in can.LogReader(path): pass``.
 * python-can cannot read MCAP; the MCAP anchor is the ``mcap`` package's own reader iterating
   the same file's frame messages (``make_reader(f).iter_messages(topics=[...])``).
-* MCAP write: a :class:`bench.mcaplog.writer.McapSink` (what a live run logs: frames,
+* MCAP write: a :class:`bench.mcaplog.sink.McapSink` (what a live run logs: frames,
   samples, results, status, events) fed the pipeline steps of the whole log, from the
   first ``write`` to the end of ``close()`` (summary and footer written). The file it
   writes is the one the MCAP replay then reads, i.e. a recorded run.
@@ -57,11 +57,11 @@ def bench_replay(path: Path, csv: Path | None = None, parquet: Path | None = Non
     """The bench's replay path, as `bench replay` runs it (collect=False, no summary), with
     the results CSV and/or Parquet file written as `--csv` / `--parquet` write them."""
     from bench.config import Config
-    from bench.replay import replay
-    from bench.table_sinks import csv_sink, parquet_sink
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
+    from bench.sinks.tables import csv_sink, parquet_sink
 
-    source = open_log(path)
+    source = open_replay(path)
     sinks = []
     if csv is not None:
         sinks.append(csv_sink(csv))
@@ -76,10 +76,10 @@ def bench_replay(path: Path, csv: Path | None = None, parquet: Path | None = Non
 
 
 def read_only(path: Path) -> int:
-    """The bench's reader alone: open_log(path).batches() (what replay feeds the pipeline)."""
-    from devices.files import open_log
+    """The bench's reader alone: open_replay(path).batches() (what replay feeds the pipeline)."""
+    from bench.replay.sources import open_replay
 
-    source = open_log(path)
+    source = open_replay(path)
     try:
         return sum(len(b.frames) for b in source.batches(65536))
     finally:
@@ -89,7 +89,7 @@ def read_only(path: Path) -> int:
 def pipeline_only(frames: Any, batch: int = 65536) -> int:
     """The pipeline alone on frames already in memory, in replay's batch size."""
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())
@@ -101,7 +101,7 @@ def pipeline_only(frames: Any, batch: int = 65536) -> int:
 
 def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())
@@ -112,7 +112,7 @@ def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
 
 def write_mcap(path: Path, steps: list[Any]) -> Any:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     sink = McapSink(path, Config(), {"source": "benchmark", "mode": "benchmark"})
     for step in steps:
@@ -277,7 +277,9 @@ def measure(
         ):
             dt, n = timed(lambda p=path: read_only(p), repeat)
             figures.append(
-                Figure(key, label, n / dt, "frames/s", detail=f"open_log().batches(): {n} frames")
+                Figure(
+                    key, label, n / dt, "frames/s", detail=f"open_replay().batches(): {n} frames"
+                )
             )
         dt, n = timed(lambda: pipeline_only(frames), repeat)
         figures.append(

@@ -22,11 +22,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.cli import main
-from bench.columns import CSV_SCHEMA, RESULT_FIELDS, RESULTS, results_from_table
 from bench.config import Config
-from bench.replay import replay
-from bench.results import RESULT_DTYPE
-from bench.table_sinks import CsvFile, ParquetFile
+from bench.records.columns import CSV_SCHEMA, RESULT_FIELDS, RESULTS, results_from_table
+from bench.records.results import RESULT_DTYPE
+from bench.replay.run import replay
+from bench.sinks.tables import CsvFile, ParquetFile
 from devices.files import open_log
 from devices.writers import write_candump
 from tests.test_mcap_support import emulated
@@ -201,7 +201,7 @@ def test_parquet_says_units_calibration_and_source_in_its_schema(tmp_path, wall_
 def test_parquet_row_groups_are_bounded(tmp_path):
     rows = np.zeros(2500, dtype=RESULT_DTYPE)
     rows["n"] = np.arange(2500)
-    from bench.table_sinks import TableSink
+    from bench.sinks.tables import TableSink
 
     out = tmp_path / "g.parquet"
     sink = TableSink(ParquetFile(out), chunk_rows=1000, raise_errors=True)
@@ -215,7 +215,7 @@ def test_parquet_row_groups_are_bounded(tmp_path):
 
 def test_large_chunks_formatted_by_two_threads_are_exact_too():
     """Chunks of PARALLEL_ROWS or more take the two-thread path: the same exact text."""
-    from bench.table_sinks import PARALLEL_ROWS
+    from bench.sinks.tables import PARALLEL_ROWS
 
     rng = np.random.default_rng(3)
     n = PARALLEL_ROWS * 2 + 7

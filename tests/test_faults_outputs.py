@@ -87,7 +87,7 @@ def _events(path: Path) -> list[str]:
 def test_live_csv_on_a_full_disk_is_isolated_and_the_mcap_goes_on(
     tmp_path, scenario, monkeypatch, capsys
 ):
-    from bench import table_sinks
+    from bench.sinks import tables as table_sinks
 
     limit = 20_000  # ~60 rows: the disk fills at the first write, 0.5 s into the run
     monkeypatch.setattr(
@@ -236,8 +236,8 @@ def test_log_export_into_a_missing_folder_is_one_line(run_log, tmp_path, capsys,
 def test_log_export_parquet_holds_the_recorded_results(run_log, tmp_path):
     import pyarrow.parquet as pq
 
-    from bench.columns import results_from_table
-    from bench.mcaplog.reader import read_results
+    from bench.mcaplog.recorded import read_results
+    from bench.records.columns import results_from_table
 
     out = tmp_path / "x.parquet"
     assert main(["log", "export", str(run_log), "--parquet", str(out)]) == 0

@@ -18,9 +18,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from bench.cli import main
-from bench.columns import results_from_table
 from bench.config import Config
-from bench.replay import replay
+from bench.records.columns import results_from_table
+from bench.replay.run import replay
 from devices.files import open_log
 from devices.writers import write_candump
 

@@ -15,10 +15,10 @@ from rich.console import Console
 from rich.table import Table
 
 from bench.errors import BenchError
-from bench.outpaths import check_output_dir, describe_os_error
+from bench.sinks.paths import check_output_dir, describe_os_error
 
 if TYPE_CHECKING:
-    from bench.acceptance.runner import Outcome
+    from bench.acceptance.outcome import RunOutcome
 
 _STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
 
@@ -95,8 +95,9 @@ def list_table() -> Table:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.answers import load_answers
     from bench.acceptance.plan import load_plan
-    from bench.acceptance.runner import Options, has_live_source, load_answers, run_plan
+    from bench.acceptance.runner import Options, has_live_source, run_plan
 
     console = Console()
     if args.list:
@@ -140,8 +141,8 @@ def run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
-def result_table(outcome: Outcome) -> Table:
-    from bench.acceptance.report import format_limits, format_value
+def result_table(outcome: RunOutcome) -> Table:
+    from bench.acceptance.report.text import format_limits, format_value
 
     table = Table(title=f"acceptance {outcome.plan.name}")
     table.add_column("check", style="bold")
@@ -156,7 +157,7 @@ def result_table(outcome: Outcome) -> Table:
     return table
 
 
-def print_outcome(outcome: Outcome, console: Console) -> None:
+def print_outcome(outcome: RunOutcome, console: Console) -> None:
     """The table, then one line per check that did not pass: which one and by how much."""
     console.print(result_table(outcome))
     for m in outcome.measurements:

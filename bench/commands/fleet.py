@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.config import load_config
     from bench.fleet.run import expand, fleet_table, run_fleet
-    from bench.outpaths import check_output_dir
+    from bench.sinks.paths import check_output_dir
 
     if args.workers is not None and args.workers < 1:
         raise BenchError(f"--workers must be >= 1, got {args.workers}")

@@ -19,7 +19,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from bench.outpaths import check_output_file, write_error
+from bench.sinks.paths import check_output_file, write_error
 
 
 def register(subparsers: Any) -> None:
@@ -178,11 +178,10 @@ def export_results(
 ) -> int:
     """Write the replay's CSV or Parquet file: recorded results, or fusion recomputed from the
     raw frames. Returns the rows written; a write failure is a one-line BenchError."""
-    from bench.commands.replay import results_metadata
     from bench.config import load_config
-    from bench.mcaplog.reader import read_results, recorded_config
-    from bench.pipeline import Pipeline
-    from bench.table_sinks import csv_sink, parquet_sink
+    from bench.mcaplog.recorded import read_results, recorded_config
+    from bench.pipeline.steps import Pipeline
+    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 
     config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
     results = None if recompute else read_results(lg)
@@ -200,7 +199,7 @@ def export_results(
         if results is not None:
             sink.put(results)
         else:
-            from devices.mcap_file import McapFrameSource
+            from bench.mcaplog.source import McapFrameSource
 
             print(f"bench: {config.announcement()}", file=sys.stderr)
             pipe = Pipeline(config)

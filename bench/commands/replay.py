@@ -18,9 +18,9 @@ from rich.progress import (
 
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.outpaths import check_output_file
-from bench.replay import replay
-from bench.summary import print_summary
+from bench.replay.run import replay
+from bench.sinks.paths import check_output_file
+from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
@@ -59,8 +59,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.table_sinks import csv_sink, parquet_sink
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
+    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 
     console = Console(stderr=True)
     if args.csv:
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if args.parquet:
         check_output_file(args.parquet, "Parquet file")
     config = replay_config(args.config, args.input)
-    source = open_log(args.input)
+    source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them
         print(f"bench: {config.announcement()}", file=sys.stderr)
         hint = replay_hint(config, args.input)
@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
                 "--compare needs an .mcap input (only MCAP logs hold recorded results)"
             )
         from bench.mcaplog.compare import compare_results, print_comparison
-        from bench.mcaplog.reader import read_results
+        from bench.mcaplog.recorded import read_results
 
         report = compare_results(read_results(args.input), outcome.results)
         print_comparison(report, console)
@@ -142,16 +142,3 @@ def _close_all(sinks: list) -> None:
     for sink in sinks:
         with contextlib.suppress(Exception):  # the failure being raised is the one to tell
             sink.close()
-
-
-def results_metadata(config: object, source: str) -> dict[str, str]:
-    """File-level metadata of a results Parquet file: the calibration (as TOML, as `--config`
-    reads it) and where it came from, the source log, the bench version."""
-    from bench import __version__
-
-    return {
-        "bench.version": __version__,
-        "bench.source": str(source),
-        "bench.calibration": config.to_toml(),  # type: ignore[attr-defined]
-        "bench.calibration_source": config.describe(),  # type: ignore[attr-defined]
-    }

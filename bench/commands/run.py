@@ -12,10 +12,10 @@ from types import FrameType
 from typing import Any
 
 from bench.config_choice import announce, live_config
-from bench.live import LiveRunner, Snapshot
-from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
-from bench.outpaths import check_output_file
-from bench.summary import print_summary
+from bench.live.runner import LiveRunner, Snapshot
+from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.sinks.paths import check_output_file
+from bench.sinks.summary import print_summary
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)
     if args.csv:
-        from bench.table_sinks import csv_sink
+        from bench.sinks.tables import csv_sink
 
         try:
             sinks.append(csv_sink(args.csv, live=True))

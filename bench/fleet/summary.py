@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from bench.events import EventKind
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
+from bench.records.events import EventKind
 
 WORST_EVENTS = 5
 """Event kinds listed per log, most frequent first (benign kinds left out)."""

@@ -113,14 +113,13 @@ def _config_for(path: str, config_toml: str | None) -> Any:
 
 
 def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
-    from bench.commands.replay import results_metadata
     from bench.fleet.summary import SummarySink, summary_row
-    from bench.replay import replay
-    from bench.table_sinks import parquet_sink
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
+    from bench.sinks.tables import parquet_sink, results_metadata
 
     config = _config_for(path, config_toml)
-    source = open_log(path)
+    source = open_replay(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         summary = SummarySink()

@@ -1,0 +1,33 @@
+"""The result of fusion per sampling instant: one numpy row layout (columns: records.columns)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+RESULT_DTYPE = np.dtype(
+    [
+        ("n", "<i8"),  # unwrapped sample index
+        ("seq", "<i8"),  # arrival index of the sample's last frame
+        ("ticks", "<i8"),  # unwrapped board time, 100 us ticks
+        ("t", "<f8"),  # receive time of the sample's last frame, s
+        ("time_s", "<f8"),  # board time from the first sample, s
+        ("code", "<i4", (3,)),
+        ("status", "u1", (3,)),
+        ("present", "?", (3,)),
+        ("acc", "<f8", (3,)),  # calibrated m/s^2; NaN where the channel is not usable
+        ("slopes", "<f8", (3,)),  # g12, g23, g13 per mille (reference method)
+        ("votes", "?", (3,)),  # v1, v2, v3
+        ("weights", "<f8", (3,)),  # w12, w23, w13
+        ("gradient", "<f8"),  # reference result per mille; NaN when invalid
+        ("valid", "?"),
+        # the bench's own estimator (METHOD.md section 5)
+        ("gradient_signed", "<f8"),  # per mille; NaN when unavailable
+        ("gradient_ls", "<f8"),  # least-squares magnitude per mille (no a_ref needed)
+        ("u", "<f8"),  # specific force along the track, m/s^2
+        ("w", "<f8"),  # specific force normal to the track, m/s^2
+        ("a_ref", "<f8"),  # reference acceleration from SPEED_REF, m/s^2; NaN when unavailable
+        ("residual", "<f8"),  # least-squares residual, m/s^2
+        ("degraded", "?"),  # computed from two channels only
+        ("excluded", "u1"),  # channel excluded by the estimator (1..3), 0 = none
+    ]
+)
