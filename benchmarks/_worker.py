@@ -56,6 +56,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import outputs
 
         return outputs.measure_fleet(out=_Emitting(), **kwargs)
+    if name == "accuracy":
+        from benchmarks import accuracy
+
+        return accuracy.measure(log=_log, **kwargs)
     raise SystemExit(f"unknown measurement {name!r}")
 
 
