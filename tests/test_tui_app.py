@@ -260,7 +260,8 @@ def test_keys_are_in_the_footer_and_the_command_palette() -> None:
     async def run() -> None:
         app = BenchApp(session, poll_hz=0)
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.pause()
+            # the footer is drawn after the first refresh, which a loaded machine delays
+            await wait_for(pilot, lambda: "q Quit" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
             for key in ("q Quit", "p Pause display", "r Rec", "m Mark", "+ Tol+", "- Tol-"):
                 assert key in footer
