@@ -14,6 +14,7 @@ from typing import Any
 from bench.config_choice import announce, live_config
 from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.mcaplog.foxglove_stream import open_stream
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
 
@@ -44,8 +45,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     rec = ""
     if s.recording:
         rec = f" log {s.recording.get('frames', 0)}f"
-    if s.output_errors:
-        rec += " CSV FAILED"
+    if s.output_errors:  # a secondary output (the CSV, the live stream) has failed
+        rec += " CSV FAILED" if any("CSV" in e for e in s.output_errors) else " OUTPUT FAILED"
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
@@ -99,6 +100,17 @@ def run(args: argparse.Namespace) -> int:
             for sig, handler in old_handlers.items():
                 signal.signal(sig, handler)
             raise
+    try:
+        stream = open_stream(args, config, lambda m: print(f"bench: {m}", file=sys.stderr))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        setup.close()
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        raise
+    if stream is not None:
+        sinks.append(stream)  # fed like the log: the processing thread only enqueues
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()
