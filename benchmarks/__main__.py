@@ -37,6 +37,12 @@ PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
     ("latency", {"seconds": 30.0, "tui": True}, {"seconds": 8.0, "tui": True}, 120),
     ("accuracy", {}, {}, 300),
+    (
+        "rec_toggle",
+        {"before_s": 5.0, "after_s": 10.0, "toggles": 3},
+        {"before_s": 2.0, "after_s": 3.0, "toggles": 1},
+        180,
+    ),
 ]
 
 

@@ -52,6 +52,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import accuracy
 
         return accuracy.measure(log=_log, **kwargs)
+    if name == "rec_toggle":
+        from benchmarks import rec_toggle
+
+        return rec_toggle.measure(**kwargs)
     raise SystemExit(f"unknown measurement {name!r}")
 
 

@@ -159,7 +159,7 @@ def test_tui_replay_of_an_mcap_uses_the_recorded_calibration(
     import bench.live.session as session_module
 
     monkeypatch.setattr(session_module, "live_session", lambda setup, config, *a, **k: setup)
-    monkeypatch.setattr(tui_command, "show", lambda setup: used.append(setup) or 0)
+    monkeypatch.setattr(tui_command, "show", lambda setup, **app: used.append(setup) or 0)
     real_setup = session_module.replay_setup
 
     def setup_spy(path: str, config: Config, **kwargs: object) -> object:
@@ -186,7 +186,7 @@ def test_tui_and_demo_on_an_emulated_board_use_it_as_built(
     sc = short_level_run(tmp_path, 0.5)
     plans: list[object] = []
     monkeypatch.setattr(engine, "start_engine", lambda plan, warn: plans.append(plan))
-    monkeypatch.setattr(tui_command, "show", lambda session: 0)
+    monkeypatch.setattr(tui_command, "show", lambda session, **app: 0)
     assert main(["tui", "--emulate", str(sc)]) == 0
     assert main(["demo", "--scenario", str(sc)]) == 0
     cal = tmp_path / "cal.toml"

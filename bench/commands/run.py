@@ -14,6 +14,7 @@ from typing import Any
 from bench.config_choice import announce, live_config
 from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.mcaplog.foxglove_stream import open_stream
 from bench.sinks.csv import CsvSink
 from bench.sinks.summary import print_summary
 
@@ -85,6 +86,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"bench: logging to {recording.path}", file=sys.stderr)
     if args.csv:
         sinks.append(CsvSink(args.csv))
+    try:
+        stream = open_stream(args, config, lambda m: print(f"bench: {m}", file=sys.stderr))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        setup.close()
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        raise
+    if stream is not None:
+        sinks.append(stream)  # fed like the log: the processing thread only enqueues
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()
