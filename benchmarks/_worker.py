@@ -48,6 +48,14 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import live
 
         return live.measure_latency(**kwargs)
+    if name == "replay_memory":
+        from benchmarks import outputs
+
+        return outputs.measure_memory(out=_Emitting(), **kwargs)
+    if name == "fleet":
+        from benchmarks import outputs
+
+        return outputs.measure_fleet(out=_Emitting(), **kwargs)
     if name == "accuracy":
         from benchmarks import accuracy
 
