@@ -23,9 +23,10 @@ import pytest
 
 from bench.config import Config
 from bench.engine.child import RowTap
-from bench.engine.client import EngineSession, ResultRing, start_engine
+from bench.engine.client import EngineSession, start_engine
 from bench.engine.plans import BoardPlan, EnginePlan
 from bench.errors import BenchError
+from bench.live.view import ResultRing
 from bench.pipeline.steps import StepOutput
 from bench.records.results import RESULT_DTYPE
 

@@ -14,7 +14,8 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from bench.config import Config
-from bench.live.runner import LiveRunner, Snapshot
+from bench.live.runner import LiveRunner
+from bench.live.view import Snapshot
 from devices.base import FileSource, LiveSource, SourceBatch
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE

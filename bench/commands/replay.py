@@ -17,7 +17,6 @@ from rich.progress import (
 
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.replay.run import replay
 from bench.sinks.csv import CsvSink
 from bench.sinks.summary import print_summary
 
@@ -53,6 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.replay.run import replay  # the pipeline only for this command, not every CLI start
     from bench.replay.sources import open_replay
 
     console = Console(stderr=True)

@@ -9,13 +9,16 @@ import sys
 import threading
 import time
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.config_choice import announce, live_config
-from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.live.view import Snapshot
 from bench.sinks.csv import CsvSink
 from bench.sinks.summary import print_summary
+
+if TYPE_CHECKING:
+    from bench.live.runner import LiveRunner
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,6 +55,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.live.runner import LiveRunner  # the pipeline only for this command
     # from the first moment: a signal at any point ends the run with a finished log
     stop = threading.Event()
     signalled: list[int] = []

@@ -8,8 +8,8 @@ in-process board, the LiveRunner and the MCAP writer keep a GIL of their own.
 :func:`start_engine` starts the engine ("spawn": the parent has threads, and python-can's
 virtual bus only connects buses inside one process, so board and source both live there)
 from a plan (:mod:`bench.engine.plans`) and returns an :class:`EngineSession`, which offers
-the App exactly the API of :class:`bench.live.session.Session`. Snapshots bring only the
-results new since the last one; the history ring is kept here.
+the App the same :class:`bench.live.view.SessionLike` as :class:`bench.live.session.Session`.
+Snapshots bring only the results new since the last one; the history ring is kept here.
 """
 
 from __future__ import annotations
@@ -30,11 +30,13 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
-from bench.engine.child import SIGNALS, EngineReport, child_main
+from bench.engine.entry import child_entry
 from bench.engine.plans import EnginePlan
-from bench.live.runner import HISTORY, ResultRing, Snapshot
+from bench.engine.wire import SIGNALS, EngineReport
+from bench.live.view import HISTORY, ReplayControl, ResultRing, Snapshot
 from bench.pipeline.stats import Stats
 from bench.records.results import RESULT_DTYPE
+from bench.sinks.base import RecordingStatus
 from devices.cpu_placement import other_cpus, pin_thread, restore_thread
 
 READY_TIMEOUT_S = 300.0
@@ -168,7 +170,7 @@ class RemoteRecorder:
         self._active = bool(hello["recording"])
         self._can_start = bool(hello["can_start"])
         self.files: list[Path] = [Path(p) for p in hello["files"]]
-        self.last_status: dict[str, Any] | None = None
+        self.last_status: RecordingStatus | None = None
 
     @property
     def active(self) -> bool:
@@ -218,12 +220,11 @@ class RemoteRecorder:
 
 
 class EngineSession:
-    """A live run in the engine process, as the TUI sees it (see :class:`Session`)."""
+    """A live run in the engine process, as the TUI sees it (a :class:`SessionLike`)."""
 
     mode = "live"
-    replay = None
-    fixed = None
-    setup = None
+    replay: ReplayControl | None = None  # a live run has no transport
+    controllable = True
 
     def __init__(self, process: Any, conn: Any, hello: dict[str, Any], config: Config) -> None:
         self.pid = int(hello["pid"])
@@ -242,6 +243,14 @@ class EngineSession:
         # CPU until stop(): a screen drawing there delays acquisition (cpu_placement)
         self._placement = pin_thread(other_cpus())
         self._channel = _Channel(conn, self._on_gone, self._finish)
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return float(self.runner.config.sample_rate_hz)
+
+    @property
+    def error(self) -> str | None:
+        return self.runner.error
 
     # -- requests --------------------------------------------------------------------------
     def call(self, op: str, *args: Any, **kwargs: Any) -> Any:
@@ -387,7 +396,9 @@ def start_engine(
     building (no such bus, log folder unusable) is raised here as the engine raised it."""
     ctx = multiprocessing.get_context("spawn")
     conn, child_conn = ctx.Pipe(duplex=True)
-    proc = ctx.Process(target=child_main, args=(child_conn, plan), name="bench-engine", daemon=True)
+    proc = ctx.Process(
+        target=child_entry, args=(child_conn, plan), name="bench-engine", daemon=True
+    )
     # started first: starting it later would unblock SIGINT and SIGTERM in the mask below
     resource_tracker.ensure_running()
     with _signals_blocked():

@@ -36,6 +36,10 @@ RESULT_DTYPE = np.dtype(
     ]
 )
 
+VOTE_SLOPES = ((0, 1), (1, 2), (0, 2))
+"""The two ``slopes`` columns each of ``votes`` v1, v2, v3 compares (g12~g23, g23~g13,
+g12~g13): how a screen labels a vote without importing fusion (bench.fusion.reference)."""
+
 CSV_COLUMNS = [
     "time_s",
     "counter",

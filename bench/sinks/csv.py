@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from bench.pipeline.steps import StepOutput
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from bench.pipeline.steps import StepOutput
 
 
 class CsvSink:
