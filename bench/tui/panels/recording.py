@@ -18,13 +18,13 @@ def recording_table(status: RecordingStatus | None, last: RecordingStatus | None
         table.add_row(Text("○ not recording: press r to start", style="dim"))
         if last:
             table.add_row(Text("last file:", style="bold"))
-            table.add_row(last.path or MISSING)
+            table.add_row(str(last.path or MISSING))
             table.add_row(_figures(last))
         return table
     head = Text("● REC", style="bold red")
     head.append("  " + duration_text(status.duration_s), style="bold")
     table.add_row(head)
-    path = status.path or MISSING
+    path = str(status.path or MISSING)
     if status.error:  # before the long path, where a short panel cannot crop it away
         reason = status.error.removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
