@@ -121,11 +121,6 @@ class LiveRunner:
         with self._lock:
             self._sinks.append(sink)
 
-    def remove_sink(self, sink: Sink) -> None:
-        with self._lock:
-            if sink in self._sinks:
-                self._sinks.remove(sink)
-
     def set_tolerance(self, permil: float) -> None:
         self.pipeline.tolerance_permil = max(0.0, float(permil))
         self.mark(f"tolerance set to {self.pipeline.tolerance_permil:g} permil")

@@ -31,7 +31,7 @@ class EventKind(IntEnum):
     EXCLUDED = 17  # channel, n: the estimator excluded a channel; value = reason code
     READMITTED = 18  # channel, n: the estimator readmitted it
     BOARD_STATE = 19  # value = new board state
-    LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
+    # 20: unused (kinds are recorded in logs by number: never renumber)
     DROPPED = 21  # value = frames dropped by a full queue
 
 
