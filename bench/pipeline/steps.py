@@ -25,6 +25,7 @@ from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
+from bench.records.twins import FUSION_SAMPLES
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
@@ -39,9 +40,6 @@ _NOTICE_KINDS = {
 _VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
 _NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
 _NO_FRAMES = empty_frames()
-SCALAR_SAMPLES = 16
-"""Steps with up to this many samples are fused by the scalar twin (a live step has one or
-two); more by the vectorised path. Same float64 results either way (tests prove it)."""
 
 
 class _ByteRuns:
@@ -177,7 +175,7 @@ class Pipeline:
             return _NO_RESULTS, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
-        if len(samples) <= SCALAR_SAMPLES:
+        if len(samples) <= FUSION_SAMPLES:
             return self._compute_scalar(samples, speed)
         res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
         _FROM_SAMPLE.copy(res, samples)

@@ -10,6 +10,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from bench.records.twins import EVENT_ROWS
+
 
 class EventKind(IntEnum):
     CRC_ERROR = 1  # channel = ADC channel or 0; value = frame id
@@ -94,8 +96,6 @@ def _in_order(t: np.ndarray) -> bool:
     return bool(np.all(t[1:] >= t[:-1]))
 
 
-_FEW = 16
-"""Up to this many events are ordered in plain Python (numpy's fixed costs would dominate)."""
 _WORD = np.uint16 if EVENT_DTYPE.itemsize % 2 == 0 else np.uint8
 
 
@@ -129,7 +129,7 @@ def concat_events(parts: list[np.ndarray]) -> np.ndarray:
         return NO_EVENTS
     if len(parts) == 1:
         return parts[0]
-    if sum(len(p) for p in parts) <= _FEW:  # a live step's few: sort Python tuples
+    if sum(len(p) for p in parts) <= EVENT_ROWS:  # a live step's few: sort Python tuples
         rows = [row for p in parts for row in p.tolist()]
         rows.sort(key=lambda r: (r[0] != r[0], r[0]))  # stable, NaN last, like argsort
         return np.array(rows, dtype=EVENT_DTYPE)
