@@ -19,8 +19,7 @@ import numpy as np
 
 from bench.config import Config
 from bench.live.view import HISTORY, ResultRing, Snapshot
-from bench.pipeline.steps import Pipeline, StepOutput
-from bench.records.arrays import concat_records
+from bench.pipeline.steps import Pipeline, StepOutput, merge_batches
 from bench.records.events import EventKind, describe, make_events
 from bench.sinks.base import Sink
 from devices.base import LiveSource, SourceBatch
@@ -28,17 +27,6 @@ from devices.cpu_placement import live_cpus, pin_thread
 
 MAX_COALESCE = 512
 """Queued source batches merged into one pipeline step at most."""
-
-
-def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
-    """One batch holding the parts' frames, link errors and notices, in arrival order."""
-    if len(parts) == 1:
-        return parts[0]
-    return SourceBatch(
-        concat_records([p.frames for p in parts]),
-        [e for p in parts for e in p.link_errors],
-        [n for p in parts for n in p.notices],
-    )
 
 
 class LatencyRing:

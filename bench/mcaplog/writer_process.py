@@ -39,8 +39,7 @@ import numpy as np
 
 from bench.config import Config
 from bench.mcaplog.sink import DEFAULT_FLUSH_INTERVAL_S, DEFAULT_GROUP_INTERVAL_S, McapSink
-from bench.pipeline.steps import StepOutput
-from bench.records.arrays import concat_records
+from bench.pipeline.steps import STEP_ARRAYS, StepOutput, merge_steps
 from bench.sinks.queued import MAX_GROUP, STOP, QueuedSink
 from devices.base import SourceBatch
 from devices.cpu_placement import other_cpus, pin_thread, yield_cpu
@@ -54,7 +53,6 @@ CLOSE_TIMEOUT_S = 120.0
 WRITER_GROUP_S = 0.25
 """The writer process encodes what arrived in groups this far apart: its fixed cost per
 group (a dozen topics, each a few numpy calls) is then paid 4 times a second."""
-_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
 _CHILD_SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
 )
@@ -67,9 +65,10 @@ def pack_steps(items: Sequence[tuple[StepOutput, int]]) -> dict[str, Any]:
     one by one costs ~50 us each; this ~10 us per step."""
     steps = [s for s, _ in items]
     batches = [s.batch for s in steps]
+    merged = merge_steps(steps)
     return {
-        "arrays": {name: concat_records([getattr(s, name) for s in steps]) for name in _ARRAYS},
-        "sizes": np.array([[len(getattr(s, n)) for n in _ARRAYS] for s in steps], np.int64),
+        "arrays": {name: getattr(merged, name) for name in STEP_ARRAYS},
+        "sizes": np.array([[len(getattr(s, n)) for n in STEP_ARRAYS] for s in steps], np.int64),
         "seq0": [s.seq0 for s in steps],
         "wall": [w for _, w in items],
         "has_batch": [b is not None for b in batches],
@@ -87,7 +86,7 @@ def unpack_steps(packed: dict[str, Any]) -> list[tuple[StepOutput, int]]:
     for i, wall in enumerate(packed["wall"]):
         part = {
             name: arrays[name][int(starts[i, k]) : int(ends[i, k])]
-            for k, name in enumerate(_ARRAYS)
+            for k, name in enumerate(STEP_ARRAYS)
         }
         batch = None
         if packed["has_batch"][i]:

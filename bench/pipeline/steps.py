@@ -12,6 +12,7 @@ with acquisition and logging, and its fixed cost per step is the live latency.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,6 +22,7 @@ from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
 from bench.pipeline.assembly import Assembler
 from bench.pipeline.stats import Stats
+from bench.records.arrays import concat_records
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.results import RESULT_DTYPE
@@ -98,6 +100,37 @@ class StepOutput:
     status: np.ndarray = field(default_factory=lambda: np.zeros(0, STATUS_DTYPE))
     speed: np.ndarray = field(default_factory=lambda: np.zeros(0, SPEED_DTYPE))
     batch: SourceBatch | None = None
+
+
+STEP_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
+"""The array fields of a StepOutput, in the order the MCAP writer takes them."""
+
+
+def merge_batches(parts: Sequence[SourceBatch]) -> SourceBatch:
+    """One batch holding the parts' frames, link errors and notices, in arrival order."""
+    if len(parts) == 1:
+        return parts[0]
+    return SourceBatch(
+        concat_records([p.frames for p in parts]),
+        [e for p in parts for e in p.link_errors],
+        [n for p in parts for n in p.notices],
+    )
+
+
+def merge_steps(steps: Sequence[StepOutput]) -> StepOutput:
+    """Consecutive steps as one: every array field concatenated in order (one bytes join
+    each, not np.concatenate), the batches' link errors and notices in order, the first
+    step's ``seq0``. The one routine for every place that ships or writes steps in groups."""
+    if len(steps) == 1:
+        return steps[0]
+    arrays = {name: concat_records([getattr(s, name) for s in steps]) for name in STEP_ARRAYS}
+    batches = [s.batch for s in steps if s.batch is not None]
+    batch = SourceBatch(
+        arrays["frames"],
+        [e for b in batches for e in b.link_errors],
+        [n for b in batches for n in b.notices],
+    )
+    return StepOutput(**arrays, seq0=steps[0].seq0, batch=batch)
 
 
 class Pipeline:
