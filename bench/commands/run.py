@@ -45,8 +45,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     valid = 100.0 * st.valid / st.samples if st.samples else 0.0
     gaps = sum(c.gaps for c in st.channels)
     rec = ""
-    if s.recording:
-        rec = f" log {s.recording.get('frames', 0)}f"
+    if s.recording is not None:
+        rec = f" log {s.recording.frames or 0}f"
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
