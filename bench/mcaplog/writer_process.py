@@ -2,12 +2,13 @@
 
 Why: encoding a live run (a JSON object per result, chunk building) is pure Python. In the
 bench process it runs in bursts of a few milliseconds, and while it holds the GIL the
-acquisition and processing threads wait. Here the bench process only queues each step (as
-before) and a sender thread ships each group of queued steps, merged into one set of arrays
+acquisition and processing threads wait. Here the bench process only queues each step
+and a sender thread ships each group of queued steps, merged into one set of arrays
 (~0.5 ms per 50 ms group), to a writer process at idle CPU priority that runs the very same
 :class:`~bench.mcaplog.sink.McapSink` code without its thread. (Measured on 2 cores: the
 encoder's CPU still shows in the live latency p99 wherever it runs -- see
-docs/BENCHMARKS.md -- but no longer as GIL stalls of the bench process.)
+docs/BENCHMARKS.md -- but as competition for a core, not as GIL stalls of the bench
+process.)
 
 The front (:class:`McapProcessSink`) has McapSink's interface and counters; the writer's
 figures (frames logged, bytes, error) come back after every group. Crash safety gets
