@@ -119,7 +119,7 @@ class ProblemLog(logging.Handler):
 
 
 def child_main(conn: Any, plan: EnginePlan) -> None:
-    """The engine process's entry point (a multiprocessing target)."""
+    """Run the engine in this process (started by :mod:`bench.engine.entry`)."""
     for sig in SIGNALS:
         signal.signal(sig, signal.SIG_IGN)  # until the run exists; then SIGTERM stops it
     if hasattr(signal, "pthread_sigmask"):

@@ -23,10 +23,8 @@ import atexit
 import contextlib
 import logging
 import math
-import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -43,6 +41,7 @@ from bench.mcaplog.sink import DEFAULT_FLUSH_INTERVAL_S, DEFAULT_GROUP_INTERVAL_
 from bench.pipeline.steps import STEP_ARRAYS, StepOutput, merge_steps
 from bench.sinks.queued import MAX_GROUP, STOP, QueuedSink
 from devices.base import SourceBatch
+from devices.child_process import end_child, parent_connection, start_child
 from devices.cpu_placement import other_cpus, pin_thread, yield_cpu
 
 log = logging.getLogger("bench.mcaplog")
@@ -134,41 +133,6 @@ def _writer_status(sink: McapSink) -> dict[str, Any]:
     }
 
 
-def _start_writer() -> tuple[Connection, subprocess.Popen[bytes]]:
-    """Start the writer process: a fresh interpreter (not multiprocessing, whose daemonic
-    engine process may not have children), in a session of its own so a terminal's Ctrl-C
-    or hang-up reaches only the bench process, talking over a socket pair."""
-    ours, theirs = socket.socketpair()
-    root = str(Path(__file__).resolve().parents[2])  # importable also from a source tree
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    try:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "bench.mcaplog.writer_process", str(theirs.fileno())],
-            pass_fds=(theirs.fileno(),),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,  # the bench process reports the writer's errors
-            env=env,
-            start_new_session=True,
-        )
-    finally:
-        theirs.close()
-    return Connection(ours.detach()), proc
-
-
-def _end_writer(proc: subprocess.Popen[bytes], grace_s: float) -> None:
-    """Wait ``grace_s`` for the writer to end by itself, then terminate, then kill it."""
-    for end in (None, proc.terminate, proc.kill):
-        if end is not None:
-            if proc.poll() is not None:
-                return
-            end()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(grace_s if end is None else 5.0)
-            return
-
-
 def _writer_main(conn: Connection) -> None:
     """Runs McapSink's writer side on what arrives over ``conn`` until told to close or
     the pipe ends; then writes the summary and footer."""
@@ -242,7 +206,10 @@ class McapProcessSink(QueuedSink):
         super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
         self.frames_sent = 0  # frames handed to the writer process
         options = dict(options, flush_interval_s=flush_interval_s)
-        self._conn, self._proc = _start_writer()
+        # a session of its own: a terminal's Ctrl-C or hang-up is the bench process's to handle
+        self._conn, self._proc = start_child(
+            "bench.mcaplog.writer_process", own_session=True, quiet=True
+        )
         self._gone = False
         with contextlib.suppress(OSError):
             self._conn.send(
@@ -261,7 +228,7 @@ class McapProcessSink(QueuedSink):
             return
         with contextlib.suppress(OSError):
             self._conn.close()
-        _end_writer(self._proc, 10.0)
+        end_child(self._proc, 10.0)
 
     # -- sender thread ---------------------------------------------------------------------
     def _await_first(self) -> None:
@@ -359,5 +326,5 @@ class McapProcessSink(QueuedSink):
             self.frames_lost += frames
 
 
-if __name__ == "__main__":  # the writer process (see _start_writer)
-    _writer_main(Connection(int(sys.argv[1])))
+if __name__ == "__main__":  # the writer process (devices.child_process.start_child)
+    _writer_main(parent_connection(sys.argv))
