@@ -74,6 +74,7 @@ class Snapshot:
     error: str | None = None
     marks: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    output_errors: list[str] = field(default_factory=list)  # failed secondary outputs (CSV)
 
 
 class RecorderControl(Protocol):

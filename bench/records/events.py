@@ -35,6 +35,7 @@ class EventKind(IntEnum):
     BOARD_STATE = 19  # value = new board state
     # 20: unused (kinds are recorded in logs by number: never renumber)
     DROPPED = 21  # value = frames dropped by a full queue
+    OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
 
 
 EVENT_DTYPE = np.dtype(
@@ -166,6 +167,10 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("status " + "|".join(status_names(value)))
     elif kind is EventKind.VOTE_FAIL:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
+    elif kind is EventKind.OUTPUT_ERROR:
+        import os
+
+        parts.append(os.strerror(value) if value > 0 else "write failed")
     elif kind is EventKind.LINK_ERROR:
         from protocol.layout import Outcome
 

@@ -21,23 +21,21 @@ def recording_table(status: RecordingStatus | None, last: RecordingStatus | None
             table.add_row(str(last.path or MISSING))
             table.add_row(_figures(last))
         return table
-    head = Text("● REC", style="bold red")
-    head.append("  " + duration_text(status.duration_s), style="bold")
+    head = Text("● REC ", style="bold red")
+    head.append(duration_text(status.duration_s), style="bold")
+    if status.queue is not None:
+        head.append(f"  queue {status.queue}", style="dim")
     table.add_row(head)
     path = str(status.path or MISSING)
     if status.error:  # before the long path, where a short panel cannot crop it away
         reason = status.error.removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
     table.add_row(path)
-    table.add_row(_figures(status, duration=False))
-    line = Text()
+    line = Text(_figures(status, duration=False))
     for key, value in (("dropped", status.dropped), ("lost", status.lost)):
         if value:
-            line.append(f"{key} {value}  ", style="bold red")
-    if status.queue is not None:
-        line.append(f"queue {status.queue}", style="dim")
-    if line:
-        table.add_row(line)
+            line.append(f"  {key} {value}", style="bold red")
+    table.add_row(line)
     return table
 
 
