@@ -33,7 +33,7 @@ DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 480),
     ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
-    ("replay_memory", {"sizes": [1_000_000, 10_000_000]}, {"sizes": [200_000, 1_000_000]}, 900),
+    ("replay_memory", {"sizes": [1_000_000, 10_000_000]}, {"sizes": [1_000_000, 2_000_000]}, 900),
     (
         "fleet",
         {"n_logs": 20, "frames_per_log": 300_000},
