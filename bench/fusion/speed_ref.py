@@ -38,11 +38,11 @@ import math
 
 import numpy as np
 
-from bench.assembly import MAX_BRIDGE_TICKS
 from bench.config import EstimatorSettings
 from bench.fusion.isolation import NEVER
 from bench.fusion.kalman import SpeedKalman
 from bench.records import SPEED_DTYPE
+from bench.timeline import MAX_BRIDGE_TICKS
 from protocol.layout import TICK_S, TS_WRAP
 
 _INF = math.inf
