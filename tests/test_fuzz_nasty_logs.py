@@ -205,8 +205,11 @@ def build_corpus(d: Path) -> dict[str, Path]:
     files["wrong_endian_ids.log"] = _candump(_reseal(be_ids))
 
     # MCAP: truncated at every kind of place, unfinished, swapped record lengths
-    for cut in (8, 9, 20, 100, len(mcap) // 3, len(mcap) // 2, len(mcap) - 40, len(mcap) - 1):
-        files[f"truncated_{cut}.mcap"] = mcap[:cut]
+    # (named by place, not offset: the run metadata's length differs between processes)
+    cuts = {"8": 8, "9": 9, "20": 20, "100": 100, "third": len(mcap) // 3}
+    cuts |= {"half": len(mcap) // 2, "end-40": len(mcap) - 40, "end-1": len(mcap) - 1}
+    for label, cut in cuts.items():
+        files[f"truncated_{label}.mcap"] = mcap[:cut]
     first_len_at = 8 + 1  # the Header record's length field (u64 little-endian)
     swapped_len = bytearray(mcap)
     length = struct.unpack_from("<Q", swapped_len, first_len_at)[0]

@@ -11,6 +11,7 @@ import time
 from types import FrameType
 from typing import Any
 
+from bench.argtypes import SECONDS
 from bench.config_choice import announce, live_config
 from bench.live import LiveRunner, Snapshot
 from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a status line; log every frame and result to MCAP.",
     )
     add_live_arguments(p)
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=SECONDS, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
     p.set_defaults(func=run)
