@@ -14,7 +14,6 @@ from typing import TYPE_CHECKING
 from rich.console import Console
 from rich.table import Table
 
-from bench.argtypes import SPEED
 from bench.errors import BenchError
 
 if TYPE_CHECKING:
@@ -50,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--speed",
-        type=SPEED,
+        type=float,
         default=1.0,
         metavar="X",
         help="virtual board speed for --realtime (default 1 = real time)",

@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from bench.argtypes import SPEED
 from bench.errors import BenchError
 
 
@@ -62,7 +61,7 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument(
         "--speed",
-        type=SPEED,
+        type=float,
         default=1.0,
         metavar="FACTOR",
         help="real-time factor (2 = twice as fast); default 1",
