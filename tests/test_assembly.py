@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.assembly import SCALAR_MAX, Assembler
-from bench.events import EventKind
+from bench.pipeline.assembly import SCALAR_MAX, Assembler
+from bench.records.events import EventKind
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
 from tests.helpers import adc, instant, pack, status_frame
@@ -205,7 +205,7 @@ def faulty_stream(draw):
             d = f.data
             ts = (d[5] | d[6] << 8) + draw(st.integers(-20, 20))
             f = adc(f.can_id - 0x100, d[0], d[1] | d[2] << 8 | d[3] << 16, ts, f.t, d[4])
-        if what == "ts_off" and f.can_id != 0x100:  # a wild board time (bench.timeline)
+        if what == "ts_off" and f.can_id != 0x100:  # a wild board time (bench.pipeline.timeline)
             d = f.data
             ts = (d[5] | d[6] << 8) + draw(st.sampled_from([-30000, 5000, 30000]))
             f = adc(f.can_id - 0x100, d[0], d[1] | d[2] << 8 | d[3] << 16, ts, f.t, d[4])

@@ -11,8 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.assembly import Assembler
-from bench.events import EventKind
+from bench.pipeline.assembly import Assembler
+from bench.records.events import EventKind
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
 from tests.helpers import adc, instant, pack, status_frame

@@ -65,8 +65,8 @@ def _reseal(frames: np.ndarray) -> np.ndarray:
 
 def _mcap_bytes(tmp: Path, frames: np.ndarray) -> bytes:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
-    from bench.pipeline import Pipeline
+    from bench.mcaplog.sink import McapSink
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     path = tmp / "src.mcap"
@@ -317,8 +317,8 @@ def test_noise_warnings_are_bounded(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
     """A single absurd receive time mid-log costs at most the samples around it."""
     from bench.config import Config
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
     from devices.writers import write_candump
 
     frames = _frames(3.0)
@@ -329,19 +329,19 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
         f["t"][len(f) // 2] = bad
         path = tmp_path / f"bad_{bad}.log"
         write_candump(path, f)
-        out = replay(open_log(path), Config(), collect=True)
+        out = replay(open_replay(path), Config(), collect=True)
         assert len(out.results) >= clean - 3, f"t={bad}: {len(out.results)} of {clean} samples"
         assert out.pipeline.stats.samples_lost <= 3, f"t={bad}: {out.pipeline.stats.samples_lost}"
 
 
 def replay_count(frames: np.ndarray, path: Path) -> int:
     from bench.config import Config
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
     from devices.writers import write_candump
 
     write_candump(path, frames)
-    return len(replay(open_log(path), Config(), collect=True).results)
+    return len(replay(open_replay(path), Config(), collect=True).results)
 
 
 @pytest.mark.parametrize(
@@ -352,14 +352,14 @@ def test_time_axis_glitch_costs_no_samples(tmp_path: Path, glitch: str) -> None:
     frames 'late'. Now: every sample of a 5 s, 200 Hz log (3 300 frames), none lost, none
     late, the glitch one counted event (a wild board time costs its one frame)."""
     from bench.config import Config
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
 
     frames = _frames(5.0)
     frames["t"] += 1.7e9
     path = tmp_path / f"{glitch}.log"
     path.write_text(candump_unclamped(time_axis_glitches(frames)[glitch]))
-    out = replay(open_log(path), Config(), collect=True)
+    out = replay(open_replay(path), Config(), collect=True)
     stats = out.pipeline.stats
     assert stats.frames == len(frames) == 3300
     assert len(out.results) == 1000 and stats.samples_lost == 0
