@@ -33,10 +33,11 @@ class EventKind(IntEnum):
     BOARD_STATE = 19  # value = new board state
     LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
     DROPPED = 21  # value = frames dropped by a full queue
-    OUTLIER = 22  # channel, n: a lone frame whose board time threw it off the stream (dropped);
+    OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
+    OUTLIER = 23  # channel, n: a lone frame whose board time threw it off the stream (dropped);
     # value = its receive-minus-board time against the stream's, ms
-    TIME_OUTLIER = 23  # channel, n: a lone frame whose receive time was off (frame used); value ms
-    CLOCK_STEP = 24  # receive time minus board time stepped (host or board clock); value = ms
+    TIME_OUTLIER = 24  # channel, n: a lone frame whose receive time was off (frame used); value ms
+    CLOCK_STEP = 25  # receive time minus board time stepped (host or board clock); value = ms
 
 
 EVENT_DTYPE = np.dtype(
@@ -175,6 +176,10 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
     elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
         parts.append(f"{value / 1000:+.3f} s")
+    elif kind is EventKind.OUTPUT_ERROR:
+        import os
+
+        parts.append(os.strerror(value) if value > 0 else "write failed")
     elif kind is EventKind.LINK_ERROR:
         from protocol.layout import Outcome
 
