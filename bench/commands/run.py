@@ -11,6 +11,7 @@ import time
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+from bench.commands.argtypes import SECONDS
 from bench.config_choice import announce, live_config
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
 from bench.live.view import Snapshot
@@ -30,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a status line; log every frame and result to MCAP.",
     )
     add_live_arguments(p)
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=SECONDS, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
     p.set_defaults(func=run)

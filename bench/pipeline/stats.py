@@ -25,6 +25,9 @@ _TOTALS = {
     EventKind.UNKNOWN_ID: "unknown_id",
     EventKind.LINK_ERROR: "link_errors",
     EventKind.PARSE_ERROR: "parse_errors",
+    EventKind.OUTLIER: "outliers",
+    EventKind.TIME_OUTLIER: "outliers",
+    EventKind.CLOCK_STEP: "clock_steps",
 }
 
 
@@ -56,6 +59,8 @@ class Stats:
     unknown_id: int = 0
     link_errors: int = 0
     parse_errors: int = 0
+    outliers: int = 0  # lone frames off the stream's time axis (bench.pipeline.timeline)
+    clock_steps: int = 0  # receive (or board) clock steps survived
     samples: int = 0
     valid: int = 0
     degraded: int = 0
@@ -180,6 +185,8 @@ class Stats:
             "unknown_id": self.unknown_id,
             "link_errors": self.link_errors,
             "parse_errors": self.parse_errors,
+            "outliers": self.outliers,
+            "clock_steps": self.clock_steps,
             "samples": self.samples,
             "valid": self.valid,
             "valid_fraction": self.valid / self.samples if self.samples else 0.0,

@@ -36,6 +36,10 @@ class EventKind(IntEnum):
     # 20: unused (kinds are recorded in logs by number: never renumber)
     DROPPED = 21  # value = frames dropped by a full queue
     OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
+    OUTLIER = 23  # channel, n: a lone frame whose board time threw it off the stream (dropped);
+    # value = its receive-minus-board time against the stream's, ms
+    TIME_OUTLIER = 24  # channel, n: a lone frame whose receive time was off (frame used); value ms
+    CLOCK_STEP = 25  # receive time minus board time stepped (host or board clock); value = ms
 
 
 EVENT_DTYPE = np.dtype(
@@ -53,6 +57,9 @@ SEVERITY = {
     EventKind.VOTE_FAIL: "warning",
     EventKind.STATUS_FLAG: "warning",
     EventKind.UNKNOWN_ID: "info",
+    EventKind.OUTLIER: "warning",
+    EventKind.TIME_OUTLIER: "warning",
+    EventKind.CLOCK_STEP: "info",
 }
 
 
@@ -167,6 +174,8 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("status " + "|".join(status_names(value)))
     elif kind is EventKind.VOTE_FAIL:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
+    elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
+        parts.append(f"{value / 1000:+.3f} s")
     elif kind is EventKind.OUTPUT_ERROR:
         import os
 
