@@ -34,3 +34,7 @@ RESULT_DTYPE = np.dtype(
         ("coasting", "?"),  # no SPEED_REF for coast_s: the filter runs on the accelerometers
     ]
 )
+
+VOTE_SLOPES = ((0, 1), (1, 2), (0, 2))
+"""The two ``slopes`` columns each of ``votes`` v1, v2, v3 compares (g12~g23, g23~g13,
+g12~g13): how a screen labels a vote without importing fusion (bench.fusion.reference)."""
