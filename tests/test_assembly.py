@@ -6,8 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.pipeline.assembly import SCALAR_MAX, Assembler
+from bench.pipeline.assembly import Assembler
 from bench.records.events import EventKind
+from bench.records.twins import ASSEMBLY_FRAMES as SCALAR_MAX
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
 from tests.helpers import adc, instant, pack, status_frame

@@ -21,7 +21,6 @@ from rich.progress import (
 from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.replay.run import replay
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
 
@@ -70,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.replay.run import replay  # the pipeline only for this command, not every CLI start
     from bench.replay.sources import open_replay
     from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 

@@ -9,15 +9,18 @@ import sys
 import threading
 import time
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.commands.argtypes import SECONDS
 from bench.config_choice import announce, live_config
-from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.live.view import Snapshot
 from bench.mcaplog.foxglove_stream import open_stream
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
+
+if TYPE_CHECKING:
+    from bench.live.runner import LiveRunner
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,8 +47,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     valid = 100.0 * st.valid / st.samples if st.samples else 0.0
     gaps = sum(c.gaps for c in st.channels)
     rec = ""
-    if s.recording:
-        rec = f" log {s.recording.get('frames', 0)}f"
+    if s.recording is not None:
+        rec = f" log {s.recording.frames or 0}f"
     if s.output_errors:  # a secondary output (the CSV, the live stream) has failed
         rec += " CSV FAILED" if any("CSV" in e for e in s.output_errors) else " OUTPUT FAILED"
     return (
@@ -56,6 +59,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.live.runner import LiveRunner  # the pipeline only for this command
     # from the first moment: a signal at any point ends the run with a finished log
     stop = threading.Event()
     signalled: list[int] = []

@@ -3,9 +3,10 @@
 One algorithm serves live runs (batches of a few frames) and replay (batches of a
 million): it carries its state across batches, and the outcome does not depend on how the
 stream is cut into batches (tests prove it). It has two twins: a vectorised path for
-batches longer than SCALAR_MAX frames and a plain-Python one for the few frames of a live
-step, where numpy's fixed cost per call would be most of the work. The state between
-batches is small Python values (at most WINDOW open samples), so either path picks it up.
+batches longer than ASSEMBLY_FRAMES frames (bench.records.twins) and a plain-Python one for
+the few frames of a live step, where numpy's fixed cost per call would be most of the work.
+The state between batches is small Python values (at most WINDOW open samples), so either
+path picks it up.
 
 The rules, all driven by frame contents and order (never by wall-clock time), so a live
 run and the replay of its log decide alike:
@@ -43,14 +44,9 @@ from bench.pipeline.timeline import (
 )
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE
+from bench.records.twins import ASSEMBLY_FRAMES, GAP_EVENT_SAMPLES
 from protocol.batch import DecodedBatch
 from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
-
-SCALAR_MAX = 64
-"""Batches up to this many frames take the scalar path (about where the two cost the same:
-a live step, or the burst after a stall); longer ones the vectorised path."""
-_FEW_ROWS = 16
-"""Emitted samples up to this many get their gap events in plain Python."""
 
 _NONE = np.iinfo(np.int64).min // 4
 _ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
@@ -158,7 +154,7 @@ class Assembler:
         """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
 
         Returns (emitted samples, events)."""
-        if len(dec) <= SCALAR_MAX:
+        if len(dec) <= ASSEMBLY_FRAMES:
             return self._push_scalar(t, dec, seq0)
         return self._push_vector(t, dec, seq0)
 
@@ -557,7 +553,7 @@ class Assembler:
         return table[: i + len(done)]
 
     def _gap_events(self, out: np.ndarray) -> np.ndarray:
-        if len(out) <= _FEW_ROWS:
+        if len(out) <= GAP_EVENT_SAMPLES:
             return self._gap_events_rows(_array_to_rows(out))
         parts = []
         present = out["present"]

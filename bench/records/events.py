@@ -10,6 +10,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from bench.records.twins import EVENT_ROWS
+
 
 class EventKind(IntEnum):
     CRC_ERROR = 1  # channel = ADC channel or 0; value = frame id
@@ -31,7 +33,7 @@ class EventKind(IntEnum):
     EXCLUDED = 17  # channel, n: the estimator excluded a channel; value = reason code
     READMITTED = 18  # channel, n: the estimator readmitted it
     BOARD_STATE = 19  # value = new board state
-    LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
+    # 20: unused (kinds are recorded in logs by number: never renumber)
     DROPPED = 21  # value = frames dropped by a full queue
     OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
     OUTLIER = 23  # channel, n: a lone frame whose board time threw it off the stream (dropped);
@@ -102,8 +104,6 @@ def _in_order(t: np.ndarray) -> bool:
     return bool(np.all(t[1:] >= t[:-1]))
 
 
-_FEW = 16
-"""Up to this many events are ordered in plain Python (numpy's fixed costs would dominate)."""
 _WORD = np.uint16 if EVENT_DTYPE.itemsize % 2 == 0 else np.uint8
 
 
@@ -137,7 +137,7 @@ def concat_events(parts: list[np.ndarray]) -> np.ndarray:
         return NO_EVENTS
     if len(parts) == 1:
         return parts[0]
-    if sum(len(p) for p in parts) <= _FEW:  # a live step's few: sort Python tuples
+    if sum(len(p) for p in parts) <= EVENT_ROWS:  # a live step's few: sort Python tuples
         rows = [row for p in parts for row in p.tolist()]
         rows.sort(key=lambda r: (r[0] != r[0], r[0]))  # stable, NaN last, like argsort
         return np.array(rows, dtype=EVENT_DTYPE)
