@@ -55,6 +55,9 @@ def wait_for_data(path: Path, proc: subprocess.Popen, timeout: float = 20.0) -> 
             pytest.fail(f"bench exited early with {proc.returncode}")
         with contextlib.suppress(OSError):
             size = path.stat().st_size
+            if size == 0:  # created (and locked) before the writer wrote its header
+                time.sleep(0.05)
+                continue
             first = size if first is None else first
             if size > first + 8192:
                 return
