@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
+from tests.test_fuzz_nasty_logs import time_limit
 
 BOARD = """[board]
 sample_rate_hz = 200
@@ -225,3 +226,48 @@ def test_scenario_fault_bounds(tmp_path, capsys, extra):
     path.write_text("duration_s = 1.0\n" + extra)
     line = one_error(*run_cli(capsys, "emulate", str(path), "--out", str(tmp_path / "o.log"), "-q"))
     assert "sc.toml" in line and ("rate_hz" in line or "faults" in line)
+
+
+# ------------------------------------------------------- item 9: non-regular files, Ctrl-C
+@pytest.mark.parametrize("ext", [".log", ".bin", ".mcap", ".asc"])
+def test_fifo_log_is_refused(tmp_path, capsys, ext):
+    import os
+
+    path = tmp_path / f"pipe{ext}"
+    os.mkfifo(path)
+    line = one_error(*run_cli(capsys, "replay", str(path), "-q"))
+    assert path.name in line and "not a regular file (a FIFO)" in line
+
+
+@pytest.mark.parametrize("ext", [".log", ".bin"])
+def test_dev_zero_log_is_refused(tmp_path, capsys, ext):
+    path = tmp_path / f"zero{ext}"
+    path.symlink_to("/dev/zero")
+    line = one_error(*run_cli(capsys, "replay", str(path), "-q"))
+    assert "not a regular file (a character device)" in line
+
+
+def test_ctrl_c_ends_a_read_ahead_whose_reader_never_yields():
+    """The prefetch thread is stuck in a read that never returns (a /dev/zero-like
+    source): Ctrl-C must still end the replay at once."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from bench.replay.prefetch import prefetch
+
+    release = threading.Event()  # ends the stuck read after the test (no thread left behind)
+
+    def never():
+        while not release.wait(0.05):
+            pass
+        yield from ()
+
+    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+    t0 = time.monotonic()
+    with time_limit(10), pytest.raises(KeyboardInterrupt):
+        for _ in prefetch(never()):
+            pass
+    release.set()
+    assert time.monotonic() - t0 < 4.0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -86,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
         from bench.acceptance.plan import load_plan
 
         plan = load_plan(args.plan)
+    if str(args.input).lower().endswith(".mcap"):
+        from devices.files import check_readable
+
+        check_readable(Path(args.input))  # before its recorded config is read: not a FIFO
     config = replay_config(args.config, args.input)
     source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them

@@ -68,7 +68,10 @@ def run(args: argparse.Namespace) -> int:
         signalled.append(signum)  # a second signal while shutting down changes nothing
         stop.set()
 
-    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    # SIGHUP (terminal closed, ssh dropped) like SIGTERM: its default would kill the run
+    # before the summary, the CSV's last rows and the MCAP's summary section
+    ends = [signal.SIGTERM, signal.SIGINT, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in ends}
     try:
         if args.csv:
             check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
