@@ -54,10 +54,7 @@ class EstimatorSettings:
     blind_grade_rate_psd_per_m: float = 1e-7  # the same while no odometer frame is accepted
     grade_sigma0_mps2: float = 0.5  # 1-sigma of g sin(alpha) before any information
     grade_rate_sigma0: float = 0.003  # 1-sigma of its rate per metre at the start, (m/s^2)/m
-    trend_alpha: float = 0.15  # weight of a frame in the moving mean of normalised innovations
-    trend_limit: float = 0.8  # |that mean| beyond this: a vertical curve starts or ends
-    grade_rate_jump: float = 0.003  # 1-sigma added to the grade's rate per metre then
-    grade_jump_mps2: float = 0.005  # 1-sigma added to g sin(alpha) then
+    grade_rate_jump: float = 0.003  # 1-sigma added to k when the odometer shows a missed curve
     # odometer
     speed_quantum_mps: float = 0.001  # SPEED_REF resolution (adds quantum^2/12 of variance)
     odometer_noise_floor_mps: float = 0.0005  # least odometer noise the filter assumes
@@ -75,9 +72,18 @@ class EstimatorSettings:
     zupt_gate_mps2: float = 0.02  # |u - g sin(alpha)| beyond this at standstill: it moves
     channel_noise_floor_mps2: float = 1e-5  # least channel noise assumed (1-sigma)
     channel_noise_tau_s: float = 2.0  # time constant of the noise learnt from the residual
+    # the normal specific force w: vertical curves (v^2/R) tell the grade's rate
+    w_block_s: float = 0.02  # w averaged over blocks this long (0: w not used)
+    w_bias_psd: float = 1e-9  # w bias random walk, (m/s^2)^2/s
+    w_bias_sigma0_mps2: float = 0.01  # 1-sigma of the w bias at the start
+    vertical_radius_min_m: float = 500.0  # the sharpest vertical curve the line has
+    curve_detect_s: float = 0.3  # time constant of the vertical-curve detector on w
+    curve_detect_sigma: float = 4.0  # it fires beyond this many of its learnt sigmas
+    curve_detect_min_mps2: float = 0.02  # and beyond this change of w (v^2/R)
+    vibration_corr_s: float = 0.2  # correlation time of the body's vertical vibration
 
 
-ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s"})
+ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s", "w_block_s"})
 """Estimator settings that may be 0 (every other one must be > 0)."""
 SIGMA_LIMIT_MAX = 100.0
 """Upper bound of fusion.gradient_sigma_limit_permil (beyond it a sigma says nothing)."""
@@ -92,7 +98,7 @@ class Config:
     )
     g: float = G0
     tolerance_permil: float = 1.0
-    gradient_sigma_limit_permil: float = 0.5  # estimator gradient withheld beyond this 1-sigma
+    gradient_sigma_limit_permil: float = 0.4  # estimator gradient withheld beyond this 1-sigma
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     source: str = "<defaults>"
     path: str | None = None  # the file it was read from
@@ -197,10 +203,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "blind_grade_rate_psd_per_m": 1.0,
     "grade_sigma0_mps2": 10.0,
     "grade_rate_sigma0": 1.0,
-    "trend_alpha": 1.0,
-    "trend_limit": 100.0,
     "grade_rate_jump": 1.0,
-    "grade_jump_mps2": 10.0,
     "speed_quantum_mps": 10.0,
     "odometer_noise_floor_mps": 100.0,
     "speed_noise_max_mps": 100.0,
@@ -216,6 +219,14 @@ ESTIMATOR_MAX: dict[str, float] = {
     "zupt_gate_mps2": 100.0,
     "channel_noise_floor_mps2": 100.0,
     "channel_noise_tau_s": 3600.0,
+    "w_block_s": 10.0,
+    "w_bias_psd": 1.0,
+    "w_bias_sigma0_mps2": 10.0,
+    "vertical_radius_min_m": 1e6,
+    "curve_detect_s": 10.0,
+    "curve_detect_sigma": 100.0,
+    "curve_detect_min_mps2": 100.0,
+    "vibration_corr_s": 10.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as
 samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""
@@ -365,7 +376,7 @@ def config_from_dict(
     limit = _number(
         source,
         "fusion.gradient_sigma_limit_permil",
-        fusion.get("gradient_sigma_limit_permil", 0.5),
+        fusion.get("gradient_sigma_limit_permil", 0.4),
         0,
         lo_open=True,
         hi=SIGMA_LIMIT_MAX,

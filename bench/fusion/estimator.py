@@ -159,7 +159,7 @@ class Estimator:
             out["degraded"] = code != FULL
             out["excluded"] = _EXCLUDED_OF_MASK[code]
         starts = self._exclusion_starts(latched, reason)
-        fo = self.filter.push(ticks * TICK_S, u, code, residual, starts, self.a_ref.applied)
+        fo = self.filter.push(ticks * TICK_S, u, w, code, residual, starts, self.a_ref.applied)
         out["gradient_signed"] = fo.gradient
         out["gradient_sigma"] = fo.sigma
         out["odometer_suspect"] = fo.suspect
@@ -167,7 +167,7 @@ class Estimator:
         out["gradient_ls"] = magnitude_gradient(w, self.g)
         out["u"] = u
         out["w"] = w
-        out["a_ref"] = a_ref
+        out["a_ref"] = fo.accel
         out["residual"] = residual
         return out, events
 
@@ -224,6 +224,7 @@ class Estimator:
         applied.clear()
         anchors: list[int] = []
         u_l: list[float] = []
+        w_l: list[float] = []
         mask_l: list[int] = []
         res_l: list[float] = []
         start_l: list[int] = []
@@ -268,6 +269,7 @@ class Estimator:
                 a = (a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0)
             u, w = solve_one(a, mask, geo)
             u_l.append(u)
+            w_l.append(w)
             mask_l.append(mask)
             res_l.append(residual)
             rows.append(
@@ -296,6 +298,7 @@ class Estimator:
         fo = self.filter.push(
             np.array(ticks_l, dtype=np.int64) * TICK_S,
             np.array(u_l),
+            np.array(w_l),
             np.array(mask_l, dtype=np.int64),
             np.array(res_l),
             np.array(start_l, dtype=np.int8),

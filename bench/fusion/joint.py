@@ -55,22 +55,35 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_RESLOW_TAU] = 1.0
     p[jk.P_RES_LIMIT] = s.residual_limit_mps2
     p[jk.P_LAT_ACC] = s.latency_min_accel_mps2
-    p[jk.P_TREND_ALPHA] = s.trend_alpha
-    p[jk.P_TREND_LIMIT] = s.trend_limit
     p[jk.P_KJUMP] = s.grade_rate_jump
-    p[jk.P_SJUMP] = s.grade_jump_mps2
     p[jk.P_UGATE] = 25.0
     p[jk.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
     p[jk.P_LEARN] = 100.0
+    p[jk.P_WBLOCK] = s.w_block_s
+    p[jk.P_QB] = s.w_bias_psd
+    p[jk.P_B0] = s.w_bias_sigma0_mps2
+    p[jk.P_WGATE] = 25.0
+    p[jk.P_WVAR_TAU] = 20.0
+    p[jk.P_USE_W] = 1.0 if s.w_block_s > 0.0 else 0.0
+    p[jk.P_KMAX] = config.g / s.vertical_radius_min_m
+    p[jk.P_WDET_TAU] = s.curve_detect_s
+    p[jk.P_WDET_SIGMA] = s.curve_detect_sigma
+    p[jk.P_WDET_MIN] = s.curve_detect_min_mps2
+    p[jk.P_WDET_VAR_TAU] = 5.0
+    p[jk.P_WCORR] = s.vibration_corr_s
+    p[jk.P_UFAST_TAU] = 0.05
+    p[jk.P_USTILL_TAU] = 2.0
+    p[jk.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
     return p
 
 
-def u_variance_factors(geo: Geometry) -> np.ndarray:
+def u_variance_factors(geo: Geometry, row_index: int = 0) -> np.ndarray:
     """(H^T H)^-1 uu per channel-mask code: the variance of u per unit channel noise
-    variance (sum of the squared u-row of the pseudo-inverse); inf below two channels."""
+    variance (sum of the squared u-row of the pseudo-inverse); inf below two channels.
+    ``row_index`` 1: the same for w."""
     out = np.full(8, math.inf)
     for code in range(8):
-        row = geo.pinv_array[code, 0]
+        row = geo.pinv_array[code, row_index]
         if np.isfinite(row).all():
             out[code] = float(np.dot(row, row))
     return out
@@ -100,21 +113,23 @@ class JointFilter:
         self.p = parameters(config)
         self.x, self.cov, self.m = jk.new_state(self.p)
         self.ru = u_variance_factors(geo)
+        self.rw = u_variance_factors(geo, 1)
         self.excl_gain = exclusion_gains(geo)
         # compile or load the kernel now, when the pipeline is built (before acquisition),
         # not on the first live sample; an empty batch leaves the state as it is
-        self.push(_EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_I8, None)
+        self.push(_EMPTY_F, _EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_I8, None)
 
     def push(
         self,
         b: np.ndarray,
         u: np.ndarray,
+        w: np.ndarray,
         mask: np.ndarray,
         residual: np.ndarray,
         latched: np.ndarray,
         frames: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None,
     ) -> FilterOutput:
-        """b board time (s), u, channel-mask code, parity residual and the channel (1..3)
+        """b board time (s), u, w, channel-mask code, parity residual and the channel (1..3)
         whose exclusion starts, per sample; frames:
         (anchor index, board time measured, speed m/s, restart, standstill) or None."""
         n = len(b)
@@ -128,10 +143,12 @@ class JointFilter:
             self.x, self.cov, self.m, self.p,
             np.ascontiguousarray(b, dtype=np.float64),
             np.ascontiguousarray(u, dtype=np.float64),
+            np.ascontiguousarray(w, dtype=np.float64),
             np.ascontiguousarray(mask, dtype=np.int64),
             np.ascontiguousarray(residual, dtype=np.float64),
             np.ascontiguousarray(latched, dtype=np.int8),
             self.ru,
+            self.rw,
             self.excl_gain,
             np.ascontiguousarray(fa, dtype=np.int64),
             np.ascontiguousarray(fw, dtype=np.float64),
@@ -152,6 +169,7 @@ def warm_up() -> None:
     f.push(
         np.array([0.0, 0.005]),
         np.array([0.0, 0.0]),
+        np.array([9.8, 9.8]),
         np.array([7, 7]),
         np.array([0.0, math.nan]),
         np.array([0, 0], dtype=np.int8),

@@ -14,13 +14,17 @@ a     acceleration dv/dt, m/s^2 (random walk in time)
 s     g sin(alpha): gravity along the track, m/s^2 (random walk in distance)
 k     ds/dx, the gradient's rate per metre (vertical curves; random walk in distance)
 l     odometer latency beyond the clock alignment, s (constant unless enabled)
+b     bias of w, the specific force normal to the track, m/s^2 (slow random walk)
 ====  ========================================================================
 
 Process over dt with d = |v| dt: v += a dt (+ white-jerk terms), s += k v dt; s and k
 take process noise only per metre travelled, so a train at rest keeps its gradient.
 Measurements: u = a + s at every sample (R from the channel noise and the subset's
 (H^T H)^-1); odometer z = v - (delta + l) a at every applied SPEED_REF frame, gated by its
-innovation (slip and slide); a = 0 and v = 0 at standstill (zero-velocity update).
+innovation (slip and slide); a = 0 and v = 0 at standstill (zero-velocity update); and the
+mean of w over short blocks, w = g cos(alpha) + v^2/R + b with v^2/R = v^2 k / (g cos(alpha)):
+on a vertical curve the car is pressed onto (or lifted off) its bogies, which tells k long
+before the odometer can, so the gradient follows a curve instead of lagging it.
 """
 
 from __future__ import annotations
@@ -30,8 +34,8 @@ import math
 import numpy as np
 from numba import njit
 
-NX = 5
-IV, IA, IS, IK, IL = 0, 1, 2, 3, 4
+NX = 6
+IV, IA, IS, IK, IL, IB = 0, 1, 2, 3, 4, 5
 
 # -- misc state slots (float64 array ``m``) ------------------------------------------------
 M_STARTED = 0  # 1 after the first sample
@@ -48,13 +52,22 @@ M_ZUPT_FROM = 10  # zero-velocity updates blocked before this board time
 M_HAVE_V = 11  # the speed has been initialised from an odometer frame
 M_RV = 12  # innovation-based odometer noise variance estimate
 M_LAST_SEEN = 13  # board time of the newest frame measured (applied or rejected)
-M_TREND = 14  # moving mean of the normalised odometer innovations (grade manoeuvres)
-M_TREND_FROM = 15  # board time before which no new manoeuvre is declared
-M_RESLOW = 16  # slow mean of the parity residual, m/s^2
-M_QUANT = 17  # least non-zero step between odometer readings, m/s (inf: none yet)
-M_LAST_Z = 18  # the previous reading, m/s
-M_HAVE_Z = 19  # 1 once there is a previous reading
-M_SIZE = 20
+M_RESLOW = 14  # slow mean of the parity residual, m/s^2
+M_QUANT = 15  # least non-zero step between odometer readings, m/s (inf: none yet)
+M_LAST_Z = 16  # the previous reading, m/s
+M_HAVE_Z = 17  # 1 once there is a previous reading
+M_WSUM = 18  # sum of w over the current block
+M_WCOUNT = 19  # samples in it
+M_WT0 = 20  # board time of its first sample
+M_WVAR = 21  # learnt variance of a block mean's innovation (vibration), (m/s^2)^2
+M_WFLOOR = 22  # sum of the white-noise variance factors of the block's samples
+M_WE = 23  # moving mean of the block innovations (the curve detector)
+M_WEVAR = 24  # its learnt variance while no curve shows
+M_WHOLD = 25  # board time before which the detector does not fire again
+M_UFAST = 26  # fast moving mean of u (motion at standstill)
+M_USTILL = 27  # mean of u over the quiet part of the current standstill
+M_USTILL_N = 28  # samples in it (0: no standstill going on)
+M_SIZE = 29
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -83,16 +96,28 @@ P_RV_MAX = 22  # cap of the innovation-based odometer noise variance
 P_RV_TAU = 23  # frames, time constant of that estimate
 P_RV0 = 24  # odometer noise variance assumed at the start, (m/s)^2
 P_RESLOW_TAU = 25  # s, time constant of the residual's slow mean
-P_TREND_ALPHA = 26  # weight of a new frame in that moving mean
-P_TREND_LIMIT = 27  # |moving mean| beyond this: the grade's rate has changed
-P_KJUMP = 28  # 1-sigma added to k then, (m/s^2)/m
-P_SJUMP = 29  # 1-sigma added to s then, m/s^2
-P_UGATE = 30  # u innovation beyond this (nu^2/S): the acceleration stepped
-P_QK_BLIND = 31  # k's random walk per metre while no odometer frame is accepted
-P_LEARN = 32  # innovations (nu^2/S) up to this feed the odometer noise estimate
-P_RES_LIMIT = 33  # residual limit, m/s^2 (clip of the residual's statistics)
-P_LAT_ACC = 34  # m/s^2: the latency is estimated only while |a| exceeds this
-P_SIZE = 35
+P_KJUMP = 26  # 1-sigma added to k when a clean odometer drift shows a curve missed, (m/s^2)/m
+P_UGATE = 27  # u innovation beyond this (nu^2/S): the acceleration stepped
+P_QK_BLIND = 28  # k's random walk per metre while no odometer frame is accepted
+P_LEARN = 29  # innovations (nu^2/S) up to this feed the odometer noise estimate
+P_RES_LIMIT = 30  # residual limit, m/s^2 (clip of the residual's statistics)
+P_LAT_ACC = 31  # m/s^2: the latency is estimated only while |a| exceeds this
+P_WBLOCK = 32  # s, w is averaged over blocks this long
+P_QB = 33  # w bias random walk, (m/s^2)^2/s
+P_B0 = 34  # initial 1-sigma of the w bias, m/s^2
+P_WGATE = 35  # block innovation beyond this (nu^2/S) is not applied
+P_WVAR_TAU = 36  # blocks, time constant of the learnt block variance
+P_USE_W = 37  # 1: apply the w blocks (0: the filter ignores w)
+P_KMAX = 38  # largest |k| a line has (its sharpest vertical curve), (m/s^2)/m
+P_WDET_TAU = 39  # s, time constant of the curve detector's moving mean
+P_WDET_SIGMA = 40  # it fires beyond this many of its sigmas
+P_WDET_MIN = 41  # and beyond this many m/s^2
+P_WDET_VAR_TAU = 42  # s, time constant of its learnt variance
+P_WCORR = 43  # s, correlation time of the body's vertical vibration (inflates R per block)
+P_UFAST_TAU = 44  # s, time constant of u's fast moving mean
+P_USTILL_TAU = 45  # s, longest memory of the standstill's mean of u
+P_WRES_MAX = 46  # m/s^2: w is not used while |the residual's slow mean| exceeds this
+P_SIZE = 47
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -105,6 +130,7 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cov[IS, IS] = p[P_S0] ** 2
     cov[IK, IK] = p[P_K0] ** 2
     cov[IL, IL] = p[P_LSIG] ** 2
+    cov[IB, IB] = p[P_B0] ** 2
     m = np.zeros(M_SIZE)
     m[M_LAST_FRAME] = -math.inf
     m[M_LAST_SEEN] = -math.inf
@@ -113,6 +139,8 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_ZUPT_FROM] = -math.inf
     m[M_RV] = p[P_RV0]
     m[M_QUANT] = math.inf
+    m[M_WT0] = math.nan
+    m[M_WVAR] = 0.0
     return x, cov, m
 
 
@@ -139,6 +167,40 @@ def _update(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
             mean = 0.5 * (cov[i, j] + cov[j, i])
             cov[i, j] = mean
             cov[j, i] = mean
+    return s
+
+
+@njit(cache=True)
+def _update_motion(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
+    """Scalar update of v, a and l only (Schmidt: s, k and b are considered, not updated):
+    a suspect odometer may still tell the speed, never the gradient. P_ee -= K_e (P h)_e^T
+    and P_ec -= K_e (P h)_c^T for the updated states e, P_cc unchanged."""
+    for i in range(NX):
+        acc = 0.0
+        for j in range(NX):
+            acc += cov[i, j] * h[j]
+        ph[i] = acc
+    s = r
+    for i in range(NX):
+        s += h[i] * ph[i]
+    for i in range(NX):
+        if i != IS and i != IK and i != IB:
+            x[i] += ph[i] / s * nu
+            ki = ph[i] / s
+            for j in range(NX):
+                cov[i, j] -= ki * ph[j]
+    for i in range(NX):
+        for j in range(i + 1, NX):
+            ei = i != IS and i != IK and i != IB
+            ej = j != IS and j != IK and j != IB
+            if ei and ej:
+                mean = 0.5 * (cov[i, j] + cov[j, i])
+                cov[i, j] = mean
+                cov[j, i] = mean
+            elif ei:
+                cov[j, i] = cov[i, j]
+            elif ej:
+                cov[i, j] = cov[j, i]
     return s
 
 
@@ -185,6 +247,7 @@ def _predict(x, cov, dt, p, blind):  # type: ignore[no-untyped-def]
         cov[IK, IK] += qk * d
     if p[P_LSIG] > 0.0:
         cov[IL, IL] += p[P_QL] * dt
+    cov[IB, IB] += p[P_QB] * dt
 
 
 @njit(cache=True)
@@ -198,6 +261,94 @@ def _restart_speed(x, cov, z, r):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-def]
+    """A vertical curve's start or end under vibration: the block innovations' moving mean
+    departs from zero by more than its own learnt spread. k then jumps by what explains it,
+    and s has been moving by that k for about the detector's time constant: both get the
+    matching (correlated) covariance, so the next updates can put right what was missed."""
+    tau = p[P_WDET_TAU]
+    alpha = span / tau if span < tau else 1.0
+    e = m[M_WE] + alpha * (nu - m[M_WE])
+    m[M_WE] = e
+    var = m[M_WEVAR]
+    big = e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and abs(e) > p[P_WDET_MIN]
+    if big and bi >= m[M_WHOLD] and hk * p[P_KMAX] > abs(e):
+        dk = e / hk
+        ds = dk * x[IV] * tau
+        for i in range(NX):
+            di = dk if i == IK else (ds if i == IS else 0.0)
+            if di == 0.0:
+                continue
+            for j in range(NX):
+                dj = dk if j == IK else (ds if j == IS else 0.0)
+                cov[i, j] += di * dj
+        m[M_WE] = 0.0
+        m[M_WHOLD] = bi + tau
+    elif not big:
+        beta = span / p[P_WDET_VAR_TAU]
+        m[M_WEVAR] = var + beta * (e * e - var)
+
+
+@njit(cache=True)
+def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-def]
+    """Add sample w to the current block; at the block's end apply its mean.
+
+    h(x) = c + v^2 k / c + b with c = sqrt(g^2 - s^2): the normal specific force on a
+    vertical curve (1/R = d alpha/dx, k = ds/dx = c / R). The block mean's noise is the car
+    body's vertical vibration more than the sensors' white noise; its variance is learnt
+    from the block innovations (floored at the white noise's share), so a rough ride widens
+    it instead of bending k."""
+    if m[M_WT0] != m[M_WT0]:
+        m[M_WT0] = bi
+        m[M_WSUM] = 0.0
+        m[M_WCOUNT] = 0.0
+        m[M_WFLOOR] = 0.0
+    m[M_WSUM] += wi
+    m[M_WCOUNT] += 1.0
+    m[M_WFLOOR] += r_white
+    if bi - m[M_WT0] < p[P_WBLOCK]:
+        return
+    cnt = m[M_WCOUNT]
+    mean = m[M_WSUM] / cnt
+    floor = m[M_WFLOOR] / (cnt * cnt)
+    m[M_WT0] = math.nan
+    g = p[P_G]
+    v, s, k = x[IV], x[IS], x[IK]
+    c2 = g * g - s * s
+    if c2 <= 0.0:
+        return
+    c = math.sqrt(c2)
+    for q in range(NX):
+        h[q] = 0.0
+    h[IV] = 2.0 * v * k / c
+    h[IS] = -s / c + v * v * k * s / (c2 * c)
+    h[IK] = v * v / c
+    h[IB] = 1.0
+    nu = mean - (c + v * v * k / c + x[IB])
+    hph = _innov_var(cov, h, 0.0)
+    e2 = nu * nu - hph
+    r = m[M_WVAR] if m[M_WVAR] > floor else floor
+    # the sensors' white noise is independent from block to block, the body's vibration
+    # (what the learnt variance has beyond it) is not within its correlation time
+    span = cnt * (p[P_WBLOCK] / (cnt - 1.0)) if cnt > 1.0 else p[P_WBLOCK]
+    if p[P_WCORR] > span:
+        r = floor + (r - floor) * (p[P_WCORR] / span)
+    s_nu = hph + r
+    _curve_detector(x, cov, m, p, nu, h[IK], bi, span)
+    if nu * nu > p[P_WGATE] * s_nu and h[IK] * p[P_KMAX] > math.sqrt(p[P_WGATE] * s_nu):
+        # a vertical curve starts or ends: k jumps, which its random walk per metre cannot
+        # follow; the block tells by how much (at most the sharpest curve a line has), when
+        # the train is fast enough for the curve to show at all
+        dk = nu / h[IK]
+        dk = p[P_KMAX] if dk > p[P_KMAX] else (-p[P_KMAX] if dk < -p[P_KMAX] else dk)
+        cov[IK, IK] += dk * dk
+    _update(x, cov, h, nu, r, ph)
+    lim = p[P_WGATE] * s_nu
+    e2 = lim if e2 > lim else (0.0 if e2 < 0.0 else e2)
+    m[M_WVAR] += (e2 - m[M_WVAR]) / p[P_WVAR_TAU]
+
+
+@njit(cache=True)
 def run(  # type: ignore[no-untyped-def]
     x,
     cov,
@@ -205,10 +356,12 @@ def run(  # type: ignore[no-untyped-def]
     p,
     b,
     u,
+    w,
     mask,
     residual,
     latched,
     ru_of_mask,
+    rw_of_mask,
     excl_gain,
     f_anchor,
     f_when,
@@ -223,17 +376,22 @@ def run(  # type: ignore[no-untyped-def]
 ):
     """Run the filter over one batch, in place on (x, cov, m); outputs per sample.
 
-    b: board time (s) per sample; u: specific force along the track (NaN without two
-    channels); mask: channel-mask code per sample; residual: parity residual (NaN without
-    three channels); latched: channel (1..3) whose exclusion by the residual or as stuck
-    starts at this sample, else 0; ru_of_mask: (H^T H)^-1 uu per mask code (inf below two
-    channels); excl_gain: per channel, its u weight over its parity weight.
+    b: board time (s) per sample; u, w: specific force along and normal to the track (NaN
+    without two channels); mask: channel-mask code per sample; residual: parity residual
+    (NaN without three channels); latched: channel (1..3) whose exclusion by the residual or
+    as stuck starts at this sample, else 0; ru_of_mask, rw_of_mask: (H^T H)^-1 uu and ww per
+    mask code (inf below two channels); excl_gain: per channel, its u weight over its parity
+    weight.
     Frames: anchor (sample index in this batch that first applies it, non-decreasing),
     board time it was measured, speed m/s, restart (after a long gap), standstill.
     """
     n = len(b)
     nf = len(f_anchor)
     g = p[P_G]
+    gain_max = 0.0
+    for q in range(len(excl_gain)):
+        if abs(excl_gain[q]) > gain_max:
+            gain_max = abs(excl_gain[q])
     h = np.zeros(NX)
     ph = np.zeros(NX)
     j = 0
@@ -299,10 +457,14 @@ def run(  # type: ignore[no-untyped-def]
                 h[IL] = -x[IA]
             nu = z - (x[IV] - lag * x[IA])
             s_nu = _innov_var(cov, h, rv)
-            # a reading one quantum off is what a coarse odometer does, not a slip
-            reach = math.sqrt(p[P_GATE] * s_nu) + quant
+            # a reading one quantum off is what a coarse odometer does, not a slip; and the
+            # latency is uncertain even while it is not being estimated
+            s_gate = s_nu if h[IL] != 0.0 else s_nu + x[IA] * x[IA] * cov[IL, IL]
+            reach = math.sqrt(p[P_GATE] * s_gate) + quant
             accepted = abs(nu) <= reach
-            if accepted:
+            if accepted and m[M_SUSPECT] != 0.0:
+                _update_motion(x, cov, h, nu, rv, ph)
+            elif accepted:
                 _update(x, cov, h, nu, rv, ph)
                 m[M_LAST_FRAME] = when
                 m[M_STREAK_T0] = math.nan
@@ -310,15 +472,6 @@ def run(  # type: ignore[no-untyped-def]
                     m[M_OK_SINCE] = when
                 if m[M_SUSPECT] != 0.0 and when - m[M_OK_SINCE] >= p[P_RECOVER]:
                     m[M_SUSPECT] = 0.0
-                # a vertical curve starts or ends: k jumps, which its slow random walk cannot
-                # follow; innovations of one sign in a row show it (as a manoeuvre does)
-                tr = m[M_TREND] + p[P_TREND_ALPHA] * (nu / math.sqrt(s_nu) - m[M_TREND])
-                m[M_TREND] = tr
-                if abs(tr) > p[P_TREND_LIMIT] and when >= m[M_TREND_FROM]:
-                    cov[IK, IK] += p[P_KJUMP] * p[P_KJUMP]
-                    cov[IS, IS] += p[P_SJUMP] * p[P_SJUMP]
-                    m[M_TREND] = 0.0
-                    m[M_TREND_FROM] = when + 0.5
             # odometer noise from the innovations within P_LEARN (vibration, coarse
             # quantisation): rejected ones too, or a gate set too tight would never widen;
             # a slide's frames soon pass P_LEARN and stay out
@@ -367,6 +520,8 @@ def run(  # type: ignore[no-untyped-def]
         # -- specific force along the track: u = a + s
         ui = u[i]
         have_u = ui == ui
+        # the parity residual speaks of the channels in u and w only while all three are
+        all3 = r_i == r_i and mask[i] == 7
         if have_u:
             noise2 = m[M_NOISE2] if m[M_NOISE2] > p[P_NOISE_FLOOR] else p[P_NOISE_FLOOR]
             r_u = noise2 * ru_of_mask[mask[i]]
@@ -380,11 +535,28 @@ def run(  # type: ignore[no-untyped-def]
                 # the gradient cannot jump; without this a share of it would leak into s
                 cov[IA, IA] += nu_u * nu_u
             _update(x, cov, h, nu_u, r_u, ph)
-            # -- zero-velocity update at standstill (odometer at 0 for standstill_s)
+            # w only while the channels agree: a drifting channel bends w as a curve would
+            if p[P_USE_W] != 0.0 and not (all3 and abs(m[M_RESLOW]) > p[P_WRES_MAX]):
+                _w_block(x, cov, m, p, h, ph, bi, w[i], noise2 * rw_of_mask[mask[i]])
+            # -- zero-velocity update at standstill (odometer at 0 for standstill_s). Whether
+            # the train still stands is judged by u against its own mean over the standstill,
+            # not against s: a wrong s must not block the very update that puts it right
+            fa = dt / p[P_UFAST_TAU] if dt > 0.0 else 0.0
+            m[M_UFAST] += (fa if fa < 1.0 else 1.0) * (ui - m[M_UFAST])
             if m[M_STILL] != 0.0 and not coasting:
-                if abs(ui - x[IS]) > p[P_ZGATE]:
+                n_still = m[M_USTILL_N]
+                moved = n_still >= 20.0 and abs(m[M_UFAST] - m[M_USTILL]) > p[P_ZGATE]
+                if moved:
+                    if bi >= m[M_ZUPT_FROM]:
+                        # it started moving while the update held a at 0: the last samples
+                        # went into s. The standstill's own mean of u is s (a was 0)
+                        delta = m[M_USTILL] - x[IS]
+                        x[IS] += delta
+                        x[IA] -= delta
+                        cov[IA, IA] += (m[M_UFAST] - m[M_USTILL]) ** 2
                     m[M_ZUPT_FROM] = bi + p[P_ZHOLD]  # the accelerometers feel motion
-                if bi >= m[M_ZUPT_FROM]:
+                    m[M_USTILL_N] = 0.0
+                elif bi >= m[M_ZUPT_FROM]:
                     for q in range(NX):
                         h[q] = 0.0
                     h[IA] = 1.0
@@ -394,13 +566,28 @@ def run(  # type: ignore[no-untyped-def]
                     h[IV] = 1.0
                     _update(x, cov, h, -x[IV], p[P_RV], ph)
                     m[M_HAVE_V] = 1.0
+                    # the standstill's mean of u, from quiet samples only
+                    if n_still < 20.0 or abs(m[M_UFAST] - m[M_USTILL]) < 0.5 * p[P_ZGATE]:
+                        n_still += 1.0
+                        m[M_USTILL_N] = n_still
+                        alpha = 1.0 / n_still
+                        ta = dt / p[P_USTILL_TAU] if dt > 0.0 else 0.0
+                        if ta > alpha:
+                            alpha = ta
+                        m[M_USTILL] += alpha * (ui - m[M_USTILL])
+            else:
+                m[M_USTILL_N] = 0.0
         # -- output: gradient = 1000 tan(asin(s/g)) and its 1-sigma
         s_est = x[IS]
         c2 = g * g - s_est * s_est
         if c2 > 0.0 and cov[IS, IS] >= 0.0:
             c = math.sqrt(c2)
             grad = 1000.0 * s_est / c
-            sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(cov[IS, IS])
+            # a slow parity residual means one channel is off by residual / parity weight
+            # and u by that times its u weight; which channel is not known yet, so the
+            # largest share counts until the isolation settles it
+            slow = abs(m[M_RESLOW]) * gain_max if all3 else 0.0
+            sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(cov[IS, IS] + slow * slow)
         else:
             grad = math.nan
             sigma = math.nan
