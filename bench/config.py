@@ -50,7 +50,8 @@ class EstimatorSettings:
     # the joint filter (docs/ESTIMATOR.md): process noise
     accel_psd: float = 0.1  # acceleration random walk, (m/s^2)^2/s
     grade_psd_per_m: float = 1e-9  # g sin(alpha) random walk per metre, (m/s^2)^2/m
-    grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m
+    grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m (rough ride)
+    grade_rate_psd_smooth_per_m: float = 1e-9  # the same on a smooth ride (w sees every curve)
     blind_grade_rate_psd_per_m: float = 1e-7  # the same while no odometer frame is accepted
     grade_sigma0_mps2: float = 0.5  # 1-sigma of g sin(alpha) before any information
     grade_rate_sigma0: float = 0.003  # 1-sigma of its rate per metre at the start, (m/s^2)/m
@@ -73,7 +74,7 @@ class EstimatorSettings:
     channel_noise_floor_mps2: float = 1e-5  # least channel noise assumed (1-sigma)
     channel_noise_tau_s: float = 2.0  # time constant of the noise learnt from the residual
     # the normal specific force w: vertical curves (v^2/R) tell the grade's rate
-    w_block_s: float = 0.02  # w averaged over blocks this long (0: w not used)
+    w_block_s: float = 0.05  # w averaged over blocks this long (0: w not used)
     w_bias_psd: float = 1e-9  # w bias random walk, (m/s^2)^2/s
     w_bias_sigma0_mps2: float = 0.01  # 1-sigma of the w bias at the start
     vertical_radius_min_m: float = 500.0  # the sharpest vertical curve the line has
@@ -81,9 +82,10 @@ class EstimatorSettings:
     curve_detect_sigma: float = 4.0  # it fires beyond this many of its learnt sigmas
     curve_detect_min_mps2: float = 0.02  # and beyond this change of w (v^2/R)
     vibration_corr_s: float = 0.2  # correlation time of the body's vertical vibration
+    bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
 
 
-ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s", "w_block_s"})
+ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s", "w_block_s", "bias_sigma_mps2"})
 """Estimator settings that may be 0 (every other one must be > 0)."""
 SIGMA_LIMIT_MAX = 100.0
 """Upper bound of fusion.gradient_sigma_limit_permil (beyond it a sigma says nothing)."""
@@ -98,7 +100,7 @@ class Config:
     )
     g: float = G0
     tolerance_permil: float = 1.0
-    gradient_sigma_limit_permil: float = 0.4  # estimator gradient withheld beyond this 1-sigma
+    gradient_sigma_limit_permil: float = 0.35  # estimator gradient withheld beyond this 1-sigma
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     source: str = "<defaults>"
     path: str | None = None  # the file it was read from
@@ -200,6 +202,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "accel_psd": 1e3,
     "grade_psd_per_m": 1.0,
     "grade_rate_psd_per_m": 1.0,
+    "grade_rate_psd_smooth_per_m": 1.0,
     "blind_grade_rate_psd_per_m": 1.0,
     "grade_sigma0_mps2": 10.0,
     "grade_rate_sigma0": 1.0,
@@ -227,6 +230,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "curve_detect_sigma": 100.0,
     "curve_detect_min_mps2": 100.0,
     "vibration_corr_s": 10.0,
+    "bias_sigma_mps2": 1.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as
 samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""
@@ -376,7 +380,7 @@ def config_from_dict(
     limit = _number(
         source,
         "fusion.gradient_sigma_limit_permil",
-        fusion.get("gradient_sigma_limit_permil", 0.4),
+        fusion.get("gradient_sigma_limit_permil", 0.35),
         0,
         lo_open=True,
         hi=SIGMA_LIMIT_MAX,

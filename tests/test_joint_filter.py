@@ -39,8 +39,10 @@ def test_u_variance_per_unit_channel_noise_is_the_uu_element_of_inverse_normal_m
 
 def test_at_rest_the_gradient_has_no_process_noise_and_u_alone_sets_it() -> None:
     """Standing still for 20 s on +20 permil: no distance, so the gradient's variance never
-    grows; it shrinks like 1/N with the accelerometer samples (white noise of 1 mg)."""
-    out, truth = run_filter(Run(duration_s=20.0, track=[(1e9, 20.0)], noise=0.0098))
+    grows; it shrinks like 1/N with the accelerometer samples (white noise of 1 mg). The
+    bias floor (what calibration leaves) is set to 0 here, to see the filter's own part."""
+    cfg = Config(estimator=dataclasses.replace(EstimatorSettings(), bias_sigma_mps2=0.0))
+    out, truth = run_filter(Run(duration_s=20.0, track=[(1e9, 20.0)], noise=0.0098), cfg)
     t = truth["time_s"]
     sigma = out["gradient_sigma"]
     late = t > 2.0
@@ -52,6 +54,16 @@ def test_at_rest_the_gradient_has_no_process_noise_and_u_alone_sets_it() -> None
     s5, s20 = sigma[np.searchsorted(t, 5.0)], sigma[-1]
     assert s20 / s5 == pytest.approx(math.sqrt(5.0 / 20.0), rel=0.25)
     assert not out["odometer_suspect"].any() and not out["coasting"][t > 0.1].any()
+
+
+def test_sigma_never_claims_less_than_the_bias_left_after_calibration() -> None:
+    """0.5 mm/s^2 of bias along the track is 1000 * 0.0005 / g = 0.051 permil on level track
+    (d gradient / d s = 1000 / g there): the floor however long the train stands."""
+    out, _ = run_filter(Run(duration_s=20.0, track=[(1e9, 0.0)], noise=0.0098))
+    assert Config().estimator.bias_sigma_mps2 == 0.0005
+    floor = 1000.0 * 0.0005 / G0
+    assert np.nanmin(out["gradient_sigma"]) >= floor * (1 - 1e-9)
+    assert np.nanmin(out["gradient_sigma"]) < floor * 1.2  # and it does reach it at rest
 
 
 def test_constant_grade_at_speed_known_truth_and_honest_sigma() -> None:
@@ -129,19 +141,20 @@ def test_one_kernel_call_equals_many_one_sample_calls() -> None:
     n = 400
     b = np.arange(n) * 0.005
     u = G0 * 0.01 + 0.01 * rng.standard_normal(n)
+    w = G0 + 0.01 * rng.standard_normal(n)
     mask = np.full(n, 7)
     res = 0.001 * rng.standard_normal(n)
     latched = np.zeros(n, dtype=np.int8)
     anchors = np.arange(3, n, 4)
     frames = (anchors, b[anchors] - 0.002, 0.5 + 0.0 * b[anchors], anchors == 3, anchors < 0)
-    whole = JointFilter(cfg, geo).push(b, u, mask, res, latched, frames)
+    whole = JointFilter(cfg, geo).push(b, u, w, mask, res, latched, frames)
     one = JointFilter(cfg, geo)
     parts = []
     for i in range(n):
         sel = anchors == i
         fr = (np.zeros(sel.sum(), np.int64), *(f[sel] for f in frames[1:]))
-        parts.append(one.push(b[i : i + 1], u[i : i + 1], mask[i : i + 1], res[i : i + 1],
-                              latched[i : i + 1], fr))  # fmt: skip
+        parts.append(one.push(b[i : i + 1], u[i : i + 1], w[i : i + 1], mask[i : i + 1],
+                              res[i : i + 1], latched[i : i + 1], fr))  # fmt: skip
     for name in ("gradient", "sigma", "suspect", "coasting", "accel"):
         cut = np.concatenate([getattr(p, name) for p in parts])
         assert getattr(whole, name).tobytes() == cut.tobytes(), name

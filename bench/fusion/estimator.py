@@ -167,7 +167,7 @@ class Estimator:
         out["gradient_ls"] = magnitude_gradient(w, self.g)
         out["u"] = u
         out["w"] = w
-        out["a_ref"] = fo.accel
+        out["a_ref"] = a_ref
         out["residual"] = residual
         return out, events
 

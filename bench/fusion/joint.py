@@ -30,6 +30,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_QA] = s.accel_psd
     p[jk.P_QS] = s.grade_psd_per_m
     p[jk.P_QK] = s.grade_rate_psd_per_m
+    p[jk.P_QK_QUIET] = s.grade_rate_psd_smooth_per_m
     p[jk.P_QL] = s.latency_psd
     p[jk.P_RV] = s.odometer_noise_floor_mps**2 + s.speed_quantum_mps**2 / 12.0
     p[jk.P_RV0] = s.speed_noise_mps**2 + s.speed_quantum_mps**2 / 12.0
@@ -74,6 +75,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jk.P_UFAST_TAU] = 0.05
     p[jk.P_USTILL_TAU] = 2.0
     p[jk.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
+    p[jk.P_BIAS] = s.bias_sigma_mps2
     return p
 
 

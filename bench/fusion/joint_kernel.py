@@ -67,7 +67,10 @@ M_WHOLD = 25  # board time before which the detector does not fire again
 M_UFAST = 26  # fast moving mean of u (motion at standstill)
 M_USTILL = 27  # mean of u over the quiet part of the current standstill
 M_USTILL_N = 28  # samples in it (0: no standstill going on)
-M_SIZE = 29
+M_STEP_T = 29  # board time of the latest acceleration step (u gate)
+M_STEP_A0 = 30  # the acceleration before it
+M_ROUGH = 31  # 0..1, how much vibration drowns w (see _predict)
+M_SIZE = 32
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -117,7 +120,9 @@ P_WCORR = 43  # s, correlation time of the body's vertical vibration (inflates R
 P_UFAST_TAU = 44  # s, time constant of u's fast moving mean
 P_USTILL_TAU = 45  # s, longest memory of the standstill's mean of u
 P_WRES_MAX = 46  # m/s^2: w is not used while |the residual's slow mean| exceeds this
-P_SIZE = 47
+P_BIAS = 47  # 1-sigma of the sensors' bias after calibration (drift), along the track
+P_QK_QUIET = 48  # k's random walk per metre on a smooth ride, ((m/s^2)/m)^2/m
+P_SIZE = 49
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -141,6 +146,7 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_QUANT] = math.inf
     m[M_WT0] = math.nan
     m[M_WVAR] = 0.0
+    m[M_STEP_T] = -math.inf
     return x, cov, m
 
 
@@ -172,9 +178,10 @@ def _update(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
 
 @njit(cache=True)
 def _update_motion(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
-    """Scalar update of v, a and l only (Schmidt: s, k and b are considered, not updated):
-    a suspect odometer may still tell the speed, never the gradient. P_ee -= K_e (P h)_e^T
-    and P_ec -= K_e (P h)_c^T for the updated states e, P_cc unchanged."""
+    """Scalar update of v alone (Schmidt: every other state is considered, not updated): a
+    suspect odometer may still hold the speed, but neither the acceleration it would bend
+    (and u would then pass the bend on to s) nor the gradient. P_vv and P_v. get the
+    update, the rest of P stays."""
     for i in range(NX):
         acc = 0.0
         for j in range(NX):
@@ -183,24 +190,13 @@ def _update_motion(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
     s = r
     for i in range(NX):
         s += h[i] * ph[i]
-    for i in range(NX):
-        if i != IS and i != IK and i != IB:
-            x[i] += ph[i] / s * nu
-            ki = ph[i] / s
-            for j in range(NX):
-                cov[i, j] -= ki * ph[j]
-    for i in range(NX):
-        for j in range(i + 1, NX):
-            ei = i != IS and i != IK and i != IB
-            ej = j != IS and j != IK and j != IB
-            if ei and ej:
-                mean = 0.5 * (cov[i, j] + cov[j, i])
-                cov[i, j] = mean
-                cov[j, i] = mean
-            elif ei:
-                cov[j, i] = cov[i, j]
-            elif ej:
-                cov[i, j] = cov[j, i]
+    kv = ph[IV] / s
+    x[IV] += kv * nu
+    for j in range(NX):
+        cov[IV, j] -= kv * ph[j]
+    for j in range(NX):
+        if j != IV:
+            cov[j, IV] = cov[IV, j]
     return s
 
 
@@ -216,12 +212,14 @@ def _innov_var(cov, h, r):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def _predict(x, cov, dt, p, blind):  # type: ignore[no-untyped-def]
+def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
     """x, P over dt seconds. EKF: s += k v dt is bilinear; F = I + dt (e_v e_a^T + k e_s e_v^T
     + v e_s e_k^T), applied to P's rows then columns in place (row s before row v, which
     it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
     the vertical-curve detector cannot see a curve start: k's process noise per metre is
-    then the one that covers such jumps (P_QK_BLIND)."""
+    then the one that covers such jumps (P_QK_BLIND). ``rough`` (0..1): how much the body's
+    vibration drowns w, in which the curve detector can miss a curve: k's random walk goes
+    from P_QK_QUIET (a smooth ride, w sees every curve) to P_QK."""
     v, k = x[IV], x[IK]
     kdt, vdt = k * dt, v * dt
     x[IV] = v + x[IA] * dt
@@ -240,7 +238,9 @@ def _predict(x, cov, dt, p, blind):  # type: ignore[no-untyped-def]
     d = abs(v) * dt  # metres travelled: the gradient changes only with distance
     if d > 0.0:
         qs = p[P_QS]
-        qk = p[P_QK_BLIND] if blind else p[P_QK]
+        qk = p[P_QK_QUIET] + rough * (p[P_QK] - p[P_QK_QUIET])
+        if blind:
+            qk = p[P_QK_BLIND]
         cov[IS, IS] += qs * d + qk * d * d * d / 3.0
         cov[IS, IK] += qk * d * d / 2.0
         cov[IK, IS] += qk * d * d / 2.0
@@ -346,6 +346,9 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     lim = p[P_WGATE] * s_nu
     e2 = lim if e2 > lim else (0.0 if e2 < 0.0 else e2)
     m[M_WVAR] += (e2 - m[M_WVAR]) / p[P_WVAR_TAU]
+    # rough: the learnt block variance against the white noise's (1 = four times above it)
+    rough = (m[M_WVAR] / floor - 1.0) / 4.0 if floor > 0.0 else 1.0
+    m[M_ROUGH] = 0.0 if rough < 0.0 else (1.0 if rough > 1.0 else rough)
 
 
 @njit(cache=True)
@@ -402,7 +405,7 @@ def run(  # type: ignore[no-untyped-def]
             m[M_LAST_B] = bi
         dt = bi - m[M_LAST_B]
         if dt > 0.0:
-            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]))
+            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]), m[M_ROUGH])
         m[M_LAST_B] = bi
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]
@@ -446,26 +449,35 @@ def run(  # type: ignore[no-untyped-def]
                 continue
             delta = bi - when
             lag = delta + x[IL]
+            # v back at the reading's instant: v - lag a, unless an acceleration step came
+            # after that instant; then the acceleration before the step holds up to it
+            back = lag  # how far back the present acceleration reaches
+            a_old = x[IA]  # the acceleration before that
+            since = bi - m[M_STEP_T]
+            if since < lag:
+                back = since
+                a_old = m[M_STEP_A0]
             for q in range(NX):
                 h[q] = 0.0
             h[IV] = 1.0
-            h[IA] = -lag
+            h[IA] = -back
             # the latency shows only in motion: near standstill the odometer's dead band
             # (it reads 0 until a whole quantum) would pass for latency
             moving = z != 0.0
-            if p[P_LSIG] > 0.0 and moving and abs(x[IA]) > p[P_LAT_ACC]:
-                h[IL] = -x[IA]
-            nu = z - (x[IV] - lag * x[IA])
+            if p[P_LSIG] > 0.0 and moving and abs(a_old) > p[P_LAT_ACC]:
+                h[IL] = -a_old
+            nu = z - (x[IV] - back * x[IA] - (lag - back) * a_old)
             s_nu = _innov_var(cov, h, rv)
             # a reading one quantum off is what a coarse odometer does, not a slip; and the
             # latency is uncertain even while it is not being estimated
-            s_gate = s_nu if h[IL] != 0.0 else s_nu + x[IA] * x[IA] * cov[IL, IL]
+            s_gate = s_nu if h[IL] != 0.0 else s_nu + a_old * a_old * cov[IL, IL]
             reach = math.sqrt(p[P_GATE] * s_gate) + quant
             accepted = abs(nu) <= reach
-            if accepted and m[M_SUSPECT] != 0.0:
-                _update_motion(x, cov, h, nu, rv, ph)
-            elif accepted:
-                _update(x, cov, h, nu, rv, ph)
+            if accepted:
+                if m[M_SUSPECT] != 0.0:
+                    _update_motion(x, cov, h, nu, rv, ph)
+                else:
+                    _update(x, cov, h, nu, rv, ph)
                 m[M_LAST_FRAME] = when
                 m[M_STREAK_T0] = math.nan
                 if m[M_OK_SINCE] != m[M_OK_SINCE]:
@@ -534,6 +546,9 @@ def run(  # type: ignore[no-untyped-def]
                 # a step of acceleration (traction or brake notch): it is all acceleration,
                 # the gradient cannot jump; without this a share of it would leak into s
                 cov[IA, IA] += nu_u * nu_u
+                if bi - m[M_STEP_T] > p[P_COAST]:  # a new step, not the same one again
+                    m[M_STEP_A0] = x[IA]  # before this step (not a sample into it)
+                m[M_STEP_T] = bi
             _update(x, cov, h, nu_u, r_u, ph)
             # w only while the channels agree: a drifting channel bends w as a curve would
             if p[P_USE_W] != 0.0 and not (all3 and abs(m[M_RESLOW]) > p[P_WRES_MAX]):
@@ -566,6 +581,12 @@ def run(  # type: ignore[no-untyped-def]
                     h[IV] = 1.0
                     _update(x, cov, h, -x[IV], p[P_RV], ph)
                     m[M_HAVE_V] = 1.0
+                    # at rest nothing tells k (v^2/R = 0, no distance): it relaxes to its
+                    # prior (no curve) rather than keep what a rough ride left in it, so the
+                    # next start does not carry it into s
+                    if cov[IK, IK] < p[P_K0] * p[P_K0]:
+                        relax = dt / p[P_USTILL_TAU] if dt > 0.0 else 0.0
+                        x[IK] -= relax * x[IK]
                     # the standstill's mean of u, from quiet samples only
                     if n_still < 20.0 or abs(m[M_UFAST] - m[M_USTILL]) < 0.5 * p[P_ZGATE]:
                         n_still += 1.0
@@ -577,6 +598,11 @@ def run(  # type: ignore[no-untyped-def]
                         m[M_USTILL] += alpha * (ui - m[M_USTILL])
             else:
                 m[M_USTILL_N] = 0.0
+        # the states a line and an odometer can have: no sharper curve than the line's
+        # sharpest, no negative or second-long latency
+        kmax = p[P_KMAX]
+        x[IK] = kmax if x[IK] > kmax else (-kmax if x[IK] < -kmax else x[IK])
+        x[IL] = 0.0 if x[IL] < 0.0 else (1.0 if x[IL] > 1.0 else x[IL])
         # -- output: gradient = 1000 tan(asin(s/g)) and its 1-sigma
         s_est = x[IS]
         c2 = g * g - s_est * s_est
@@ -586,8 +612,13 @@ def run(  # type: ignore[no-untyped-def]
             # a slow parity residual means one channel is off by residual / parity weight
             # and u by that times its u weight; which channel is not known yet, so the
             # largest share counts until the isolation settles it
-            slow = abs(m[M_RESLOW]) * gain_max if all3 else 0.0
-            sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(cov[IS, IS] + slow * slow)
+            # (once it stands out of its own noise: 4 sigma of a moving mean of white noise)
+            slow = abs(m[M_RESLOW]) if all3 else 0.0
+            if dt > 0.0 and slow * slow <= 16.0 * m[M_NOISE2] * dt / (2.0 * p[P_RESLOW_TAU]):
+                slow = 0.0
+            slow *= gain_max
+            var = cov[IS, IS] + slow * slow + p[P_BIAS] * p[P_BIAS]
+            sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(var)
         else:
             grad = math.nan
             sigma = math.nan
