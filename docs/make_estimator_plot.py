@@ -29,6 +29,7 @@ SCENARIO = {
     "seed": 7,
     "duration_s": 150.0,
     "vertical_curve_m": 80.0,
+    "vertical_curve_accel": True,
     "track": [
         {"length_m": 300.0, "gradient_permil": 0.0},
         {"length_m": 600.0, "gradient_permil": 15.0},

@@ -100,6 +100,7 @@ STUCK = {
     "seed": 5,
     "duration_s": 30.0,
     "vertical_curve_m": 100.0,
+    "vertical_curve_accel": True,  # the car feels v^2/R over the crest, as a real one does
     "initial_speed_mps": 5.0,
     # over a crest: +15 permil, then -5 permil from 150 m (reached at about 19 s)
     "track": [

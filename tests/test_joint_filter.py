@@ -112,6 +112,60 @@ def test_wheel_slide_is_gated_flagged_and_kept_out_of_the_gradient() -> None:
     assert np.max(err[given & (t > 10.0)]) < 1.0
 
 
+CREST = dict(
+    duration_s=40.0,
+    v0=20.0,
+    track=[(300.0, 0.0), (1e9, 30.0)],
+    curve_m=80.0,
+    odo_noise=0.005,
+    odo_quantum=0.02,
+    odo_lag=0.03,
+)
+"""Cruising at 20 m/s into a +30 permil grade over an 80 m vertical curve (R = 2667 m):
+the gradient rises 7.5 permil/s for 4 s, and v^2/R = 0.15 m/s^2 presses the car down. The
+odometer as a metro's: 5 mm/s noise, 0.02 m/s steps, 30 ms late."""
+
+
+def test_a_vertical_curve_is_followed_through_v2_over_r() -> None:
+    out, truth = run_filter(Run(**CREST))
+    t = truth["time_s"]
+    curve = (t > 13.0) & (t < 21.0)  # 260..420 m: the curve and 2 s either side
+    err = np.abs(out["gradient_signed"] - truth["gradient_permil"])
+    given = np.isfinite(err)
+    assert truth["gradient_permil"][curve].min() < 1 and truth["gradient_permil"][curve].max() > 29
+    assert np.max(err[given & (t > 5.0)]) < 1.0  # never confidently wrong
+    assert given[curve].mean() > 0.8  # and mostly given through the curve
+
+
+def test_without_v2_over_r_the_same_curve_goes_wrong() -> None:
+    """What w is for: with the w blocks switched off, the curve has to come from u and the
+    odometer alone, which tell a gradient that starts to change from a train that starts
+    to accelerate only after seconds; meanwhile the gradient is several permil off."""
+    blind = Config(estimator=dataclasses.replace(EstimatorSettings(), w_block_s=0.0))
+    out, truth = run_filter(Run(**CREST), blind)
+    t = truth["time_s"]
+    err = np.abs(out["gradient_signed"] - truth["gradient_permil"])
+    given = np.isfinite(err)
+    assert np.max(err[given & (t > 5.0)]) > 2.0
+
+
+def test_the_grade_rate_stays_within_the_sharpest_curve_the_line_has() -> None:
+    """vertical_radius_min_m bounds k = g / R: whatever w does (here a 2 m/s^2 bump, as a
+    rail joint might give), the filter's grade rate never exceeds g / 500 m."""
+    cfg = Config()
+    geo = geometry(cfg.angles_rad)
+    f = JointFilter(cfg, geo)
+    n = 2000
+    b = np.arange(n) * 0.005
+    w = np.full(n, G0)
+    w[1000:1100] += 2.0
+    anchors = np.arange(0, n, 4)
+    frames = (anchors, b[anchors], np.full(len(anchors), 20.0), anchors == 0, anchors < 0)
+    f.push(b, np.zeros(n), w, np.full(n, 7), np.zeros(n), np.zeros(n, np.int8), frames)
+    assert abs(f.x[jk.IK]) <= G0 / 500.0 + 1e-12
+    assert cfg.estimator.vertical_radius_min_m == 500.0
+
+
 def test_without_speed_ref_it_withholds_and_coasts_flagged() -> None:
     phases = [(5, 0.0), (20, 1.0), (40, 0.0)]
     out, truth = run_filter(

@@ -29,6 +29,7 @@ class Run:
     phases: list[tuple[float, float]] = field(default_factory=list)  # (until_s, accel)
     track: list[tuple[float, float]] = field(default_factory=lambda: [(1e9, 0.0)])  # (len, permil)
     curve_m: float = 100.0
+    curve_accel: bool = True  # the car feels v^2/R normal to the track on vertical curves
     noise: float = 0.0098  # 1 mg per channel
     bias: tuple[float, float, float] = (0.0, 0.0, 0.0)
     vib_long: float = 0.0  # m/s^2 at 2.5 Hz, full from 10 m/s
@@ -82,6 +83,17 @@ def gradient_at(run: Run, x: np.ndarray) -> np.ndarray:
     return out
 
 
+def slope_at(run: Run, x: np.ndarray) -> np.ndarray:
+    """d(gradient)/dx, per mille per metre: each change spread evenly over its curve."""
+    out = np.zeros_like(x)
+    boundary = 0.0
+    for (l0, g0), (_, g1) in zip(run.track[:-1], run.track[1:], strict=True):
+        boundary += l0
+        if run.curve_m > 0:
+            out += np.where(np.abs(x - boundary) < 0.5 * run.curve_m, (g1 - g0) / run.curve_m, 0.0)
+    return out
+
+
 def make(run: Run) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """(samples SAMPLE_DTYPE, acc (N, 3) m/s^2, speeds SPEED_DTYPE, truth per sample)."""
     rng = np.random.default_rng(run.seed)
@@ -106,6 +118,8 @@ def make(run: Run) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, np.nda
         vib_u = vib_u + bp * scale
     u = a_s + vib_u + G0 * np.sin(alpha)
     w = G0 * np.cos(alpha) + vib_w
+    if run.curve_accel:  # 1/R = d(alpha)/dx = (G'/1000) cos^2(alpha), towards the roof in a sag
+        w = w + v_s**2 * slope_at(run, x_s) / 1000.0 * np.cos(alpha) ** 2
     th = np.radians(ANGLES_DEG)
     a_ch = u[:, None] * np.cos(th) + w[:, None] * np.sin(th) + np.array(run.bias)
     a_ch += run.noise * rng.standard_normal((n, 3))
