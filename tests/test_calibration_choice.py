@@ -101,8 +101,9 @@ def test_emulator_log_with_its_sheet_replays_like_its_mcap_with_the_recorded_one
         capsys.readouterr().err
     )
     assert a.read_text() == b.read_text()
-    # level track: the estimator with the board's own angles reads ~0
-    assert abs(np.nanmean(read_csv(a)["gradient_signed_permil"])) < 0.05
+    # level track: the estimator with the board's own angles reads ~0 (within its sigma limit
+    # of 0.35 permil, 2 s after pulling away); nominal angles would read about +6.5 permil
+    assert abs(np.nanmean(read_csv(a)["gradient_signed_permil"])) < 0.2
 
 
 def test_a_log_without_calibration_says_it_replays_with_nominal_values(

@@ -34,6 +34,7 @@ import math
 import numpy as np
 from numba import njit
 
+W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
 NX = 6
 IV, IA, IS, IK, IL, IB = 0, 1, 2, 3, 4, 5
 
@@ -312,6 +313,10 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     mean = m[M_WSUM] / cnt
     floor = m[M_WFLOOR] / (cnt * cnt)
     m[M_WT0] = math.nan
+    if cov[IS, IS] > W_SIGMA_S_MAX * W_SIGMA_S_MAX:
+        # s not known yet (a start in motion): c = sqrt(g^2 - s^2) at a guessed s would put
+        # the guess's cos error into b for good; w waits until u and the odometer tell s
+        return
     g = p[P_G]
     v, s, k = x[IV], x[IS], x[IK]
     c2 = g * g - s * s
