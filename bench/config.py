@@ -2,7 +2,9 @@
 
 Every key is optional; defaults are the ICD's nominal values. Validation is strict and
 each failure is one line naming the file and key, because a silently ignored typo in an
-angle would make every result on the bench wrong.
+angle would make every result on the bench wrong. A Config also says where it came from
+(:attr:`Config.origin`, :meth:`Config.describe`): a result is only as good as the angles
+behind it, so every command prints that and every log and record stores it.
 """
 
 from __future__ import annotations
@@ -60,6 +62,30 @@ class Config:
     estimator: EstimatorSettings = field(default_factory=EstimatorSettings)
     source: str = "<defaults>"
     path: str | None = None  # the file it was read from
+    # where the values came from (ORIGINS); provenance, not part of the calibration's value
+    origin: str = field(default="nominal", compare=False)
+    recorded_in: str | None = field(default=None, compare=False)  # the log it was read back from
+
+    def describe(self) -> str:
+        """Where this calibration came from, for people: one short phrase."""
+        if self.origin == "file":
+            where = f"file {self.path or self.source}"
+        elif self.origin in ("scenario", "plan"):
+            where = self.source
+        else:
+            where = "nominal ICD values"
+        if self.recorded_in is not None:
+            where = f"recorded in {self.recorded_in} ({where})"
+        return where
+
+    def angles_text(self) -> str:
+        """The three angles and the vote tolerance, the figures an operator checks first."""
+        angles = ", ".join(f"ch{k} {c.angle_deg:g} deg" for k, c in enumerate(self.channels, 1))
+        return f"{angles}; tolerance {self.tolerance_permil:g} permil"
+
+    def announcement(self) -> str:
+        """The line every command prints: which calibration, from where, its angles."""
+        return f"calibration: {self.describe()} ({self.angles_text()})"
 
     @property
     def angles_rad(self) -> tuple[float, float, float]:
@@ -128,10 +154,44 @@ def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
     return value
 
 
+ORIGINS = ("nominal", "file", "scenario", "plan")
+"""Where a calibration comes from: the ICD's nominal values, a calibration file, an emulated
+board as built (its scenario), or an acceptance plan's scenario with the plan's overlay."""
+
+_SCENARIO_KEYS = frozenset(
+    {"description", "seed", "duration_s", "track", "train", "faults", "odometer", "speed_ref"}
+)
+
+
+def _refuse_other_files(source: str, data: dict[str, Any]) -> None:
+    """A scenario or a plan given where a calibration belongs: say what it is, in one line."""
+    scenario_keys = sorted(_SCENARIO_KEYS & set(data))
+    if scenario_keys:
+        raise ConfigError(
+            f"{source}: this is an emulator scenario (it has {scenario_keys[0]!r}), not a "
+            "calibration config: emulated runs use the scenario's board as built without "
+            f"--config; to write that calibration: bench emulate {source} --calibration-out "
+            "cal.toml"
+        )
+    if "plan" in data:
+        raise ConfigError(
+            f"{source}: this is an acceptance plan (it has [plan]), not a calibration config: "
+            "run it with bench accept"
+        )
+
+
 def config_from_dict(
-    data: dict[str, Any], source: str = "<dict>", path: str | None = None
+    data: dict[str, Any],
+    source: str = "<dict>",
+    path: str | None = None,
+    *,
+    origin: str = "file",
 ) -> Config:
     """Validate a parsed TOML document into a Config. Raises ConfigError naming the key."""
+    if origin not in ORIGINS:
+        raise ValueError(f"origin must be one of {ORIGINS}, got {origin!r}")
+    if isinstance(data, dict):
+        _refuse_other_files(source, data)
     _table(source, data, {"board", "channels", "fusion", "estimator"})
     board = _table(f"{source}: board", data.get("board", {}), {"base_id", "sample_rate_hz"})
     base_id = int(
@@ -185,6 +245,7 @@ def config_from_dict(
         estimator=EstimatorSettings(**est_values),
         source=source,
         path=path,
+        origin=origin,
     )
 
 

@@ -61,7 +61,11 @@ def add_live_arguments(parser: argparse.ArgumentParser, *, emulate_required: boo
         required=emulate_required,
         help="run the virtual board in-process on python-can's virtual bus (scenario TOML)",
     )
-    parser.add_argument("--config", help="calibration config (TOML); default: nominal ICD values")
+    parser.add_argument(
+        "--config",
+        help="calibration config (TOML); default: the virtual board as built with --emulate, "
+        "else the ICD's nominal values",
+    )
     add_log_arguments(parser)
 
 
@@ -126,6 +130,7 @@ def run_metadata(
         "bench_version": __version__,
         "source": setup.description,
         "config_source": config.source,
+        "calibration": config.describe(),
         "config_toml": config.to_toml(),
         "command": " ".join(sys.argv),
         "started_utc": datetime.now(UTC).isoformat(),

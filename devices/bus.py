@@ -25,9 +25,6 @@ from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 BURST_LIMIT = 4096
 """Frames drained into one batch after the first: bounds latency and memory of a batch."""
 
-FORBIDDEN_INTERFACES = frozenset({"udp_multicast"})
-"""Interfaces the bench refuses: udp_multicast would put bench traffic on the site network."""
-
 
 def one_line(exc: BaseException) -> str:
     """An exception as one line for an operator message (python-can messages can be multi-line)."""
@@ -117,10 +114,6 @@ def resolve_bus_config(
         raise BenchError(f"cannot open can bus: {one_line(exc)}") from exc
     except (ValueError, TypeError) as exc:
         raise BenchError(f"cannot open can bus: bad python-can config: {one_line(exc)}") from exc
-    if config.get("interface") in FORBIDDEN_INTERFACES:
-        raise BenchError(
-            f"cannot open can bus: interface {config['interface']} is not allowed on the bench"
-        )
     return config
 
 

@@ -13,10 +13,11 @@ import can
 
 from bench.errors import BenchError
 from devices.base import LiveSource
-from devices.bus import FORBIDDEN_INTERFACES, CanBusSource
+from devices.bus import CanBusSource
 from devices.serial_port import DEFAULT_BAUD, SerialSource
 
-INTERFACES = sorted(set(can.VALID_INTERFACES) - FORBIDDEN_INTERFACES)
+INTERFACES = sorted(can.VALID_INTERFACES)
+"""Every interface python-can knows, its plugins included: the operator chooses."""
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:

@@ -263,15 +263,19 @@ def test_unknown_interface_is_one_line_error() -> None:
         CanBusSource("not-an-interface", "x")
 
 
-def test_forbidden_interface_is_refused_before_any_bus_is_built(
-    monkeypatch: pytest.MonkeyPatch,
+def test_udp_multicast_resolves_like_any_interface_without_building_a_bus(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
+    # the config is resolved (as python -m can.logger would); the bus itself is never built
     def must_not_build(*args: object, **kwargs: object) -> None:
         raise AssertionError("a bus was built")
 
+    for var in ("CAN_INTERFACE", "CAN_CHANNEL", "CAN_BITRATE", "CAN_CONFIG"):
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setattr(can.util, "CONFIG_FILES", [str(tmp_path / ".canrc")])
     monkeypatch.setattr(can, "Bus", must_not_build)
-    with pytest.raises(BenchError, match="not allowed"):
-        CanBusSource("udp_multicast", "239.0.0.1")
+    config = bus_module.resolve_bus_config("udp_multicast", "239.74.163.2")
+    assert config["interface"] == "udp_multicast" and config["channel"] == "239.74.163.2"
 
 
 def test_message_conversion_round_trip() -> None:

@@ -82,6 +82,31 @@ def test_bad_combinations_are_one_line_bench_errors(argv: list[str], message: st
     assert message in str(e.value) and "\n" not in str(e.value)
 
 
-def test_udp_multicast_is_not_offered() -> None:
-    with pytest.raises(SystemExit):
-        parse(["-i", "udp_multicast"])
+def test_every_interface_python_can_knows_is_offered() -> None:
+    # parsing only: no bus is built (a udp_multicast bus would send on the IP network)
+    assert "udp_multicast" in can.VALID_INTERFACES  # the interface the README's promise covers
+    for name in sorted(can.VALID_INTERFACES):
+        assert parse(["-i", name, "-c", "239.74.163.2"]).interface == name
+
+
+def test_udp_multicast_passes_every_bench_command_parser(monkeypatch: pytest.MonkeyPatch) -> None:
+    from bench.cli import build_parser
+
+    def must_not_build(*args: object, **kwargs: object) -> None:
+        raise AssertionError("a bus was built")
+
+    monkeypatch.setattr(can, "Bus", must_not_build)
+    parser = build_parser()
+    for command in ("run", "tui", "accept"):
+        args = parser.parse_args([command, "-i", "udp_multicast", "-c", "239.74.163.2"])
+        assert (args.interface, args.channel) == ("udp_multicast", "239.74.163.2")
+    args = parser.parse_args(["emulate", "demo", "-i", "udp_multicast", "-c", "239.74.163.2"])
+    assert args.interface == "udp_multicast"
+
+
+def test_an_interface_python_can_does_not_know_is_refused_by_argparse(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit) as e:
+        parse(["-i", "no-such-interface"])
+    assert e.value.code == 2 and "invalid choice" in capsys.readouterr().err

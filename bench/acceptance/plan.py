@@ -11,11 +11,12 @@ The format is documented in docs/ACCEPTANCE.md.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from bench.acceptance.checks import KINDS, CheckSpec, Param
+from bench.acceptance.signoff import DUT_KEYS, Dut
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
 from bench.textfile import path_or_packaged, read_text_file
@@ -28,9 +29,9 @@ EXPECTS = ("pass", "fail")
 CHECK_EXPECTS = ("pass", "warn", "fail", "skip")
 LINKS = ("can", "uart")
 _TOP = ("plan", "scenario", "config", "steps", "checks")
-_PLAN_KEYS = ("name", "title", "expect", "link", "duration_s")
+_PLAN_KEYS = ("name", "title", "expect", "link", "duration_s", "dut")
 _STEP_KEYS = ("prompt", "gradient_permil", "settle_s", "measure_s", "at_s")
-_CHECK_COMMON = ("name", "kind", "from_s", "to_s", "expect")
+_CHECK_COMMON = ("name", "kind", "from_s", "to_s", "expect", "requirement")
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,6 +62,12 @@ class Plan:
     link: str = "can"
     duration_s: float | None = None
     file: str = "<plan>"  # how error messages name the plan file
+    dut: Dut = field(default_factory=Dut)  # [plan] dut: the unit this plan is run on
+    requirements: dict[str, tuple[str, ...]] = field(default_factory=dict)  # check name -> IDs
+
+    def requirement_ids(self, check: str) -> tuple[str, ...]:
+        """The requirement IDs a check verifies (``requirement`` in its [[checks]] table)."""
+        return self.requirements.get(check, ())
 
     @property
     def emulated(self) -> bool:
@@ -69,7 +76,9 @@ class Plan:
     def config(self) -> Config:
         """The calibration for an emulated run: the virtual board as built (true angles,
         sample rate, base id), with the plan's [config] overlay on top."""
-        return build_config(self.scenario, self.config_overlay, self.file)
+        return build_config(
+            self.scenario, self.config_overlay, self.file, f"scenario of plan {self.name}"
+        )
 
     def scenario_toml(self) -> str:
         """The scenario as a TOML file the emulator reads back to the same Scenario."""
@@ -172,6 +181,32 @@ def _checks(top: Table) -> tuple[CheckSpec, ...]:
     return tuple(out)
 
 
+def _requirements(top: Table, checks: tuple[CheckSpec, ...]) -> dict[str, tuple[str, ...]]:
+    """``requirement = "REQ-GRD-012"`` (or an array of IDs) per check, by check name."""
+    out = {}
+    for c, item in zip(checks, top.raw("checks"), strict=True):
+        if "requirement" not in item:
+            continue
+        t = Table(top.file, f"checks[{c.index}]", item)
+        v = t.raw("requirement")
+        ids = [v] if isinstance(v, str) else v
+        if not isinstance(ids, list) or not ids:
+            raise t.error("requirement", f"expected an ID or an array of IDs, got {v!r}")
+        for rid in ids:
+            if not isinstance(rid, str) or not rid.strip() or any(ch.isspace() for ch in rid):
+                raise t.error("requirement", f"expected IDs without spaces, got {rid!r}")
+        out[c.name] = tuple(dict.fromkeys(ids))
+    return out
+
+
+def _dut(head: Table) -> Dut:
+    if not head.has("dut"):
+        return Dut()
+    t = Table(head.file, "plan.dut", head.raw("dut"))  # not a table: one line naming it
+    t.done(DUT_KEYS)
+    return Dut(**{k: t.text(k).strip() or None for k in DUT_KEYS if t.has(k)})
+
+
 def _cross_checks(top: Table, plan: Plan) -> None:
     """What only the whole plan can tell: a check that needs truth, steps or a fault."""
     sc = plan.scenario
@@ -214,8 +249,11 @@ def _check_fault_target(top: Table, where: str, c: CheckSpec, sc: Any) -> None:
         raise top.error(f"{where}.kind", "no scenario fault targets an ADC channel to detect")
 
 
-def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
-    """Scenario calibration (or nominal) with the plan's [config] tables merged on top."""
+def build_config(
+    scenario: Any, overlay: dict[str, Any], source: str, board: str = "the plan's scenario"
+) -> Config:
+    """Scenario calibration (or nominal) with the plan's [config] tables merged on top;
+    ``board`` names the emulated board in the calibration's description."""
     import tomllib as _toml
 
     base: dict[str, Any] = {}
@@ -229,7 +267,13 @@ def build_config(scenario: Any, overlay: dict[str, Any], source: str) -> Config:
             merged[key] = {**merged[key], **value}
         else:
             merged[key] = value
-    return config_from_dict(merged, source=f"{source}: config")
+    config = config_from_dict(merged, source=f"{source}: config")  # errors name the plan
+    start = f"{board} as built" if scenario is not None else "nominal ICD values"
+    if overlay:
+        return replace(config, source=f"{start} + [config] of {source}", origin="plan")
+    if scenario is None:
+        return Config()
+    return replace(config, source=start, origin="scenario")
 
 
 def _scenario(top: Table, value: Any, plan_dir: Path | None) -> tuple[Any, dict | None, str | None]:
@@ -273,13 +317,14 @@ def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Pla
         scenario, sc_data, sc_ref = _scenario(top, data["scenario"], path.parent if path else None)
     overlay = Table(file, "config", data.get("config", {}))
     overlay.done(("board", "channels", "fusion", "estimator"))
+    checks = _checks(top)
     plan = Plan(
         name=head.text("name", default_name),
         title=head.text("title", ""),
         expect=head.choice("expect", choices=EXPECTS),
         path=path,
         text=text,
-        checks=_checks(top),
+        checks=checks,
         steps=_steps(top),
         scenario=scenario,
         scenario_data=sc_data,
@@ -288,6 +333,8 @@ def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Pla
         link=head.choice("link", "can", choices=LINKS),
         duration_s=head.num("duration_s", lo=0.0, lo_open=True) if head.has("duration_s") else None,
         file=file,
+        dut=_dut(head),
+        requirements=_requirements(top, checks),
     )
     if scenario is None and not plan.steps and plan.duration_s is None:
         raise top.error(

@@ -47,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         table = read_table(reference)
         reference = "table"
     config = load_config(args.config)
+    print(f"bench: starting from {config.announcement()}")
     source = open_log(args.log)
     try:
         rec = record(source.batches(), config)

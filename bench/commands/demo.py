@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tomllib
 from pathlib import Path
 
 import devices
-from bench.config import Config, config_from_dict, load_config
+from bench.config_choice import announce, live_config, scenario_config
 from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments
+
+__all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
 
 DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.toml"
 
@@ -43,15 +44,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def scenario_config(path: Path) -> Config:
-    """The calibration matching the virtual board as built (devices.emulator.calibration_toml)."""
-    from devices.emulator import calibration_toml, load_scenario
-
-    return config_from_dict(
-        tomllib.loads(calibration_toml(load_scenario(path))), source=f"{path.name} calibration"
-    )
-
-
 def run(args: argparse.Namespace) -> int:
     from bench.commands.tui import show
     from bench.engine import start_engine
@@ -59,9 +51,11 @@ def run(args: argparse.Namespace) -> int:
     from devices.emulator.scenario import resolve_scenario_path
 
     path = resolve_scenario_path(args.scenario)
-    config = load_config(args.config) if args.config else scenario_config(path)
+    config = live_config(args.config, path)
     log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
     plan = EmulatorPlan(
         config=config, args=cli_values(args), log_dir=log_dir, scenario=path, speed=args.speed
     )
-    return show(start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr)))
+    session = start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
+    announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
+    return show(session)

@@ -11,6 +11,7 @@ import argparse
 import math
 import shutil
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,12 @@ def register(subparsers: Any) -> None:
         metavar="CSV",
         help="write the truth per sampling instant (time_s, counter, gradient_permil, "
         "accel_mps2, speed_mps, position_m)",
+    )
+    p.add_argument(
+        "--calibration-out",
+        metavar="TOML",
+        help="write the board's calibration sheet as built (the bench config for replaying "
+        "--out FILE: bench replay FILE --config TOML)",
     )
     p.add_argument("--interface", "-i", help="python-can interface to play on (e.g. socketcan)")
     p.add_argument("--channel", "-c", help="python-can channel to play on (e.g. vcan0)")
@@ -81,8 +88,11 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.pty and (args.interface or args.channel):
         raise BenchError("choose one of --pty and --interface/--channel")
-    if not (args.out or realtime or args.truth):
-        raise BenchError("nothing to do: give --out FILE, --interface/--channel, --pty or --truth")
+    if not (args.out or realtime or args.truth or args.calibration_out):
+        raise BenchError(
+            "nothing to do: give --out FILE, --interface/--channel, --pty, --truth "
+            "or --calibration-out"
+        )
     if not (math.isfinite(args.speed) and args.speed > 0):
         raise BenchError(f"--speed must be a positive number, got {args.speed!r}")
 
@@ -91,20 +101,71 @@ def run(args: argparse.Namespace) -> int:
         if args.seed < 0:
             raise BenchError(f"--seed must be >= 0, got {args.seed}")
         sc = sc.with_changes(seed=args.seed)
+    if args.calibration_out:
+        _write_calibration(sc, args.calibration_out, args.scenario)
     sim = simulate(sc)
     if args.truth:
         write_truth_csv(args.truth, sim.truth)
         print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
     if args.out:
-        from devices.emulator import write_output
-
-        print(write_output(sim, args.out))
+        print(_write_out(sim, args.out))
         if not args.quiet:
             print(sim.summary())
+            print(_calibration_note(sc, args.out, args.calibration_out))
         return 0
     if not realtime:
         return 0
     return _play(args, sim)
+
+
+def _write_out(sim: Any, out: str) -> str:
+    """The run as a file; an MCAP records its board's calibration as built, so that
+    `bench replay FILE.mcap` reproduces the emulated run."""
+    from bench.config_choice import is_mcap, scenario_config
+    from devices.emulator import write_output
+
+    if not is_mcap(out):
+        return write_output(sim, out)
+    from bench.mcaplog.writer import write_emulation
+
+    path = Path(out)
+    config = scenario_config(sim.scenario)
+    try:
+        counts = write_emulation(path, sim, sim.scenario.path or None, config=config)
+    except OSError as exc:
+        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {path}"
+
+
+def _calibration_note(sc: Any, out: str, sheet: str | None) -> str:
+    from bench.config_choice import is_mcap, scenario_config
+
+    config = scenario_config(sc)
+    if is_mcap(out):
+        return f"calibration recorded in the log: {config.describe()} ({config.angles_text()})"
+    if sheet:
+        return f"replay it with the sheet: bench replay {out} --config {sheet}"
+    return (
+        f"note: {out} holds no calibration (board as built: {config.angles_text()}); "
+        "--calibration-out cal.toml writes the sheet for bench replay --config"
+    )
+
+
+def _write_calibration(sc: Any, out: str, given: str) -> None:
+    """The board's calibration sheet as built: what a bench replaying its frames needs."""
+    from bench.config_choice import scenario_config
+    from devices.emulator import calibration_toml
+
+    config = scenario_config(sc)
+    header = (
+        f"# calibration sheet of the virtual board as built: bench emulate {given}\n"
+        "# use it to replay this board's frames: bench replay FILE --config THIS_FILE\n"
+    )
+    try:
+        Path(out).write_text(header + calibration_toml(sc), encoding="utf-8")
+    except OSError as exc:
+        raise BenchError(f"{out}: cannot write: {exc.strerror or exc}") from None
+    print(f"wrote the calibration sheet to {out} ({config.angles_text()})")
 
 
 def _play(args: argparse.Namespace, sim: Any) -> int:

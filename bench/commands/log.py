@@ -171,6 +171,7 @@ def export_csv(
             file=sys.stderr,
         )
     config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
+    print(f"bench: {config.announcement()}", file=sys.stderr)
     pipe = Pipeline(config)
     source = McapFrameSource(lg.path)
     try:

@@ -15,7 +15,7 @@ from rich.progress import (
     TransferSpeedColumn,
 )
 
-from bench.config import load_config
+from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.replay import CsvSink, replay
 from bench.summary import print_summary
@@ -36,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--config",
         help="calibration config (TOML); default: the one recorded in an MCAP log, "
-        "else the ICD's nominal values",
+        "else the ICD's nominal values (for an emulator .log: the sheet `bench emulate "
+        "--calibration-out` wrote)",
     )
     p.add_argument(
         "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
@@ -54,16 +55,13 @@ def run(args: argparse.Namespace) -> int:
     from devices.files import open_log
 
     console = Console(stderr=True)
-    config = load_config(args.config)
-    if args.config is None and str(args.input).lower().endswith(".mcap"):
-        from bench.mcaplog.reader import recorded_config
-
-        recorded = recorded_config(args.input)
-        if recorded is not None:
-            config = recorded
-            if not args.quiet:
-                console.print(f"using the config recorded in the log ({recorded.source})")
+    config = replay_config(args.config, args.input)
     source = open_log(args.input)
+    if not args.quiet:  # plain lines: a console width must not break them
+        print(f"bench: {config.announcement()}", file=sys.stderr)
+        hint = replay_hint(config, args.input)
+        if hint:
+            print(f"bench: {hint}", file=sys.stderr)
     sinks = []
     if args.csv:
         sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]

@@ -11,7 +11,7 @@ import time
 from types import FrameType
 from typing import Any
 
-from bench.config import load_config
+from bench.config_choice import announce, live_config
 from bench.live import LiveRunner, Snapshot
 from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
 from bench.replay import CsvSink
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
     old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
-        config = load_config(args.config)
+        config = live_config(args.config, getattr(args, "emulate", None))
         setup = open_live(args)
     except BaseException:
         for sig, handler in old_handlers.items():
@@ -78,6 +78,8 @@ def run(args: argparse.Namespace) -> int:
         for sig, handler in old_handlers.items():
             signal.signal(sig, handler)
         raise
+    if not args.quiet:
+        announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
     if recording is not None:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)

@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from bench.config import Config, load_config
+from bench.config import Config
+from bench.config_choice import announce, live_config, replay_config, replay_hint
 from bench.errors import BenchError
 from bench.liveopts import DEFAULT_LOG_DIR, add_live_arguments
 
@@ -42,9 +43,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    config = load_config(args.config)
+    if args.replay:
+        config = replay_config(args.config, args.replay)
+    else:
+        config = live_config(args.config, args.emulate)
     log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
     session = run_replay(args, config, log_dir) if args.replay else run_live(args, config, log_dir)
+    say = lambda m: print(f"bench: {m}", file=sys.stderr)  # noqa: E731
+    announce(config, say)
+    hint = replay_hint(config, args.replay) if args.replay else None
+    if hint:
+        say(hint)
     return show(session)
 
 

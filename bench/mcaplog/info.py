@@ -201,6 +201,11 @@ def format_info(info: dict[str, Any]) -> str:
                 add(f"  ... and {block['count'] - len(block['spans'])} more")
     else:
         add("results:     none recorded (bench replay recomputes them from the frames)")
+    cal = info["metadata"].get("config")
+    add(
+        "calibration: "
+        + (cal.get("described", cal.get("source", "?")) if cal else "none recorded (nominal ICD)")
+    )
     add("topics:")
     for topic, n in info["topics"].items():
         add(f"  {topic:<20} {n}")

@@ -23,14 +23,14 @@ import tomllib
 import zlib
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench.assembly import SAMPLE_DTYPE
-from bench.config import Config, config_from_dict
+from bench.config import ORIGINS, Config, config_from_dict
 from bench.errors import BenchError
 from bench.events import EVENT_DTYPE
 from bench.mcaplog import schemas as S
@@ -842,7 +842,13 @@ def recorded_config(source: str | Path | McapLog) -> Config | None:
             data = tomllib.loads(meta["toml"])
         except tomllib.TOMLDecodeError as exc:
             raise BenchError(f"{where}: recorded config is not valid TOML: {exc}") from None
-        cfg = config_from_dict(data, source=meta.get("source", where))
-        return cfg
+        origin = meta.get("origin", "file")
+        cfg = config_from_dict(
+            data,
+            source=meta.get("source", where),
+            path=meta.get("path"),
+            origin=origin if origin in ORIGINS else "file",
+        )
+        return replace(cfg, recorded_in=lg.path.name)
 
     return _with(source, get)

@@ -809,7 +809,13 @@ def _supply_v(status: np.ndarray) -> np.ndarray:
 
 def _config_metadata(config: Config) -> dict[str, str]:
     """The config as loaded: its TOML text (what replay reads back) plus flat keys to browse."""
-    meta = {"source": config.source, "toml": config.to_toml(), "base_id": f"0x{config.base_id:X}"}
+    meta = {
+        "source": config.source,
+        "origin": config.origin,
+        "described": config.describe(),
+        "toml": config.to_toml(),
+        "base_id": f"0x{config.base_id:X}",
+    }
     if getattr(config, "path", None):
         meta["path"] = str(config.path)
     meta["sample_rate_hz"] = str(config.sample_rate_hz)
