@@ -12,6 +12,7 @@ from types import FrameType
 from typing import Any
 
 from bench.config_choice import announce, live_config
+from bench.errors import BenchError
 from bench.live import LiveRunner, Snapshot
 from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
 from bench.replay import CsvSink
@@ -29,6 +30,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
+    p.add_argument(
+        "--status-every",
+        type=float,
+        metavar="S",
+        help="print the status line every S seconds (default 0.5 on a terminal, else 5)",
+    )
     p.set_defaults(func=run)
 
 
@@ -52,6 +59,9 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    every = args.status_every
+    if every is not None and not (math.isfinite(every) and every > 0):
+        raise BenchError(f"--status-every must be a positive number of seconds, got {every!r}")
     # from the first moment: a signal at any point ends the run with a finished log
     stop = threading.Event()
     signalled: list[int] = []
@@ -89,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
     runner.recording = recording
     start = time.monotonic()
     tty = sys.stderr.isatty()
+    every = every if every is not None else (0.5 if tty else 5.0)
     last_print = 0.0
     runner.start()
     setup.start_board()
@@ -101,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             if setup.emulator is not None and setup.emulator.done:
                 time.sleep(0.2)  # let the last frames arrive
                 break
-            if not args.quiet and elapsed - last_print >= (0.5 if tty else 5.0):
+            if not args.quiet and elapsed - last_print >= every:
                 last_print = elapsed
                 line = status_line(runner.snapshot(last=1), elapsed)
                 end = "" if tty else "\n"

@@ -19,12 +19,14 @@ from tests.vcan.support import (
     candump,
     frames_sent,
     log_info,
+    need,
     per_id,
     play,
     read_log_frames,
     replay_csv,
     start_run,
     stop_candump,
+    tool_missing,
     topic,
     wire,
 )
@@ -80,10 +82,12 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Session:
     assert bench_main("emulate", scenario, "--out", emulator_log, "-q") == 0
     dump_dir = tmp / "candump"
     dump_dir.mkdir()
+    need(tool_missing("candump"))
     dump = candump(dump_dir)
     run, csv, mcap = start_run(tmp, "live")
     board = play(tmp, "board", scenario)
     assert board.join() == 0, board.text()
+    run.wait_received(2160)
     run_code = run.stop()
     return Session(tmp, emulator_log, board, run, run_code, csv, mcap, stop_candump(dump, dump_dir))
 

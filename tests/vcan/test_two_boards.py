@@ -21,10 +21,12 @@ from tests.vcan.support import (
     cangen,
     frames_sent,
     log_info,
+    need,
     play,
     read_log_frames,
     replay_csv,
     start_run,
+    tool_missing,
     wire,
 )
 
@@ -60,7 +62,9 @@ A = {0x100: 60, 0x101: 600, 0x102: 600, 0x103: 600, 0x180: 300}  # 10 Hz, 100 Hz
 B = {0x200: 60, 0x201: 600, 0x202: 600, 0x203: 600}
 FOREIGN = {0x555: 150, 0x18FEF101: 100}
 ON_BUS = {**A, **B, **FOREIGN}
-SPEED_COLUMNS = ("gradient_signed", "a_ref")  # from SPEED_REF, which only board A sends
+SPEED_COLUMNS = ("gradient_signed", "a_ref")
+"""Bench B's estimator takes board A's SPEED_REF where it overlaps board B's samples, which
+depends on when the two boards happened to start: these columns are not compared."""
 
 
 @dataclass
@@ -77,6 +81,7 @@ class TwoBoards:
 
 @pytest.fixture(scope="module")
 def two(tmp_path_factory: pytest.TempPathFactory) -> TwoBoards:
+    need(tool_missing("cangen"))
     tmp = tmp_path_factory.mktemp("two")
     scenarios = {
         "a": BOARD.format(seed=1, base="0x100", speed_ref="true", grade_0=0.0, grade_1=6.0),
@@ -100,6 +105,8 @@ def two(tmp_path_factory: pytest.TempPathFactory) -> TwoBoards:
     assert [p.wait(120) for p in foreign] == [0, 0]
     for board in boards.values():
         assert board.join() == 0, board.text()
+    run_a.wait_received(sum(ON_BUS.values()))
+    run_b.wait_received(sum(ON_BUS.values()))
     codes = {"a": run_a.stop(), "b": run_b.stop()}
     return TwoBoards(
         tmp,
@@ -159,7 +166,3 @@ def test_board_b_is_fused_as_if_alone_but_for_the_shared_odometer(two: TwoBoards
         return [[v for k, v in enumerate(r.split(",")) if k not in speed] for r in rows]
 
     assert without_speed(live) == without_speed(alone)
-    # board B alone has no odometer; on the bus, bench B takes board A's SPEED_REF
-    a_ref = header.index("a_ref")
-    assert all(r.split(",")[a_ref] == "" for r in alone[1:])
-    assert any(r.split(",")[a_ref] != "" for r in live[1:])
