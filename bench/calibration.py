@@ -128,8 +128,8 @@ class Fit:
 
 def record(batches: Iterable[SourceBatch], config: Config) -> Recording:
     """Run a stream through the bench's pipeline and keep what calibration needs."""
-    from bench.pipeline import Pipeline
-    from bench.replay import run_steps
+    from bench.pipeline.steps import Pipeline
+    from bench.replay.run import run_steps
 
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for step in run_steps(Pipeline(config), batches):

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
-from bench.textfile import read_text_file
-from bench.tomlcheck import error, is_integer, is_number, number_problem, to_float
+from devices.textfile import read_text_file
+from devices.tomlcheck import error, is_integer, is_number, number_problem, to_float
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,

@@ -56,7 +56,7 @@ def replay_config(config_path: str | None, log: str | Path) -> Config:
     if config_path:
         return load_config(config_path)
     if is_mcap(log):
-        from bench.mcaplog.reader import recorded_config
+        from bench.mcaplog.recorded import recorded_config
 
         recorded = recorded_config(log)
         if recorded is not None:

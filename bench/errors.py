@@ -1,13 +1,6 @@
-"""User-facing errors: the CLI prints them as one line and exits non-zero, never a traceback."""
+"""The operator-facing errors, under the bench's name (defined in devices.errors, the lowest
+layer that raises them, so that devices/ never imports bench/)."""
 
-from __future__ import annotations
+from devices.errors import BenchError, ConfigError
 
-
-class BenchError(Exception):
-    """An error the operator can act on (bad file, bad key, missing device)."""
-
-    exit_code = 2
-
-
-class ConfigError(BenchError):
-    """A config, scenario or plan file is malformed; the message names the file and key."""
+__all__ = ["BenchError", "ConfigError"]

@@ -179,8 +179,8 @@ def machine_info() -> dict[str, Any]:
 
 
 def live_cpu_text() -> str:
-    """Where the live path's threads run (bench.cpu_placement, BENCH_LIVE_CPU)."""
-    from bench.cpu_placement import LIVE_CPU_ENV, live_cpu_label
+    """Where the live path's threads run (devices.cpu_placement, BENCH_LIVE_CPU)."""
+    from devices.cpu_placement import LIVE_CPU_ENV, live_cpu_label
 
     label = live_cpu_label()
     setting = os.environ.get(LIVE_CPU_ENV, "auto")

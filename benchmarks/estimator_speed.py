@@ -11,10 +11,10 @@ import time
 
 import numpy as np
 
-from bench.assembly import SAMPLE_DTYPE
 from bench.config import Config
 from bench.fusion.estimator import Estimator
-from bench.records import SPEED_DTYPE
+from bench.records.board import SPEED_DTYPE
+from bench.records.samples import SAMPLE_DTYPE
 from protocol.layout import G0, NOMINAL_SCALE
 
 

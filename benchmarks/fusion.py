@@ -3,7 +3,7 @@
 * ``fusion core``: the device's reference method alone (:func:`bench.fusion.reference.fuse`:
   pair gradients, two-out-of-three vote, weights) over (N, 3) accelerations, called on
   batches of the size replay feeds it (65536 frames -> 21845 samples).
-* ``fusion + estimator``: :meth:`bench.pipeline.Pipeline.compute` -- the reference method,
+* ``fusion + estimator``: :meth:`bench.pipeline.steps.Pipeline.compute` -- the reference method,
   the bench's estimator and the result rows, i.e. all the pipeline does after assembly.
 """
 
@@ -21,7 +21,7 @@ def _steps(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """(samples, SPEED_REF records) per replay step for ``n`` samples of the 1 kHz board,
     through the real decoder and assembler."""
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     frames = simulation(n / 1000.0 + 1.0).frames
@@ -38,10 +38,10 @@ def _steps(n: int) -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def measure(n_samples: int = 1_000_000, repeat: int = 5) -> list[Figure]:
-    from bench.assembly import usable
     from bench.config import Config
     from bench.fusion.reference import fuse
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
+    from bench.records.samples import usable
 
     config = Config()
     steps = _steps(n_samples)

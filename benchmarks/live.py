@@ -3,11 +3,11 @@
 One run (:func:`run_live`) is what ``bench run --emulate`` / ``bench tui --emulate`` do:
 the virtual board (:func:`devices.emulator.start_virtual_board`) plays a 1 kHz x 3 channel
 scenario on a private virtual channel, ``speed`` times faster than real time for the rate
-search; a :class:`devices.bus.CanBusSource` listens; a :class:`bench.live.LiveRunner`
+search; a :class:`devices.bus.CanBusSource` listens; a :class:`bench.live.runner.LiveRunner`
 runs the pipeline; the live MCAP sink (:mod:`bench.mcaplog.writer_process`) logs; optionally the TUI
 (:class:`bench.tui.app.BenchApp`) is attached, headless, polling snapshots as on a screen --
 then, as in `bench tui`, board, source, runner, log and the latency histogram all run in the
-engine process (:mod:`bench.engine`) and the App in this one.
+engine process (:mod:`bench.engine.client`) and the App in this one.
 
 * frames sent = the board's ``frames_sent`` (frames it handed to the bus without error);
   frames logged = frame messages in the finished MCAP file, counted by reading it back.
@@ -202,8 +202,8 @@ def run_live(
     import can
 
     from bench.config import Config
-    from bench.live import LiveRunner
-    from bench.liveopts import recording_sink_class
+    from bench.live.runner import LiveRunner
+    from bench.live.setup import recording_sink_class
     from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, simulate, start_virtual_board
 
@@ -279,11 +279,11 @@ def _run_live_tui(
     workdir: str | None,
 ) -> LiveRun:
     """The run as `bench tui --emulate` does it: board, source, runner, MCAP log and the
-    LatencySink in the engine process (:mod:`bench.engine`), the App headless in this one.
+    LatencySink in the engine process (:mod:`bench.engine.client`), the App headless in this one.
     ``on_progress`` gets the session (it has ``snapshot`` and the engine's ``pid``)."""
     from bench.config import Config
-    from bench.engine import start_engine
-    from bench.engine_plans import BoardPlan
+    from bench.engine.client import start_engine
+    from bench.engine.plans import BoardPlan
 
     scenario = board_scenario(min(3600.0, run.seconds * speed + 2.0), faults=faults or [])
     config = Config(sample_rate_hz=int(scenario.get("sample_rate_hz", 1000)))

@@ -3,13 +3,13 @@
 All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
 
 * The bench figure is the whole ``bench replay`` path without CSV text:
-  ``replay(open_log(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
+  ``replay(open_replay(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
   statistics. With a CSV file it is reported separately (``replay candump + CSV``).
 * The anchor for .log and .blf is python-can's bare iteration, nothing else:
   ``for msg in can.LogReader(path): pass``.
 * python-can cannot read MCAP; the MCAP anchor is the ``mcap`` package's own reader iterating
   the same file's frame messages (``make_reader(f).iter_messages(topics=[...])``).
-* MCAP write: a :class:`bench.mcaplog.writer.McapSink` (what a live run logs: frames,
+* MCAP write: a :class:`bench.mcaplog.sink.McapSink` (what a live run logs: frames,
   samples, results, status, events) fed the pipeline steps of the whole log, from the
   first ``write`` to the end of ``close()`` (summary and footer written). The file it
   writes is the one the MCAP replay then reads, i.e. a recorded run.
@@ -52,10 +52,11 @@ def mcap_iterate(path: Path, topic: str) -> int:
 def bench_replay(path: Path, csv: Path | None = None) -> Any:
     """The bench's replay path, as `bench replay` runs it (collect=False, no summary)."""
     from bench.config import Config
-    from bench.replay import CsvSink, replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
+    from bench.sinks.csv import CsvSink
 
-    source = open_log(path)
+    source = open_replay(path)
     sinks = [CsvSink(str(csv))] if csv is not None else []
     try:
         return replay(source, Config(), sinks, collect=False)
@@ -66,10 +67,10 @@ def bench_replay(path: Path, csv: Path | None = None) -> Any:
 
 
 def read_only(path: Path) -> int:
-    """The bench's reader alone: open_log(path).batches() (what replay feeds the pipeline)."""
-    from devices.files import open_log
+    """The bench's reader alone: open_replay(path).batches() (what replay feeds the pipeline)."""
+    from bench.replay.sources import open_replay
 
-    source = open_log(path)
+    source = open_replay(path)
     try:
         return sum(len(b.frames) for b in source.batches(65536))
     finally:
@@ -79,7 +80,7 @@ def read_only(path: Path) -> int:
 def pipeline_only(frames: Any, batch: int = 65536) -> int:
     """The pipeline alone on frames already in memory, in replay's batch size."""
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())
@@ -91,7 +92,7 @@ def pipeline_only(frames: Any, batch: int = 65536) -> int:
 
 def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
     from bench.config import Config
-    from bench.pipeline import Pipeline
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     p = Pipeline(Config())
@@ -102,7 +103,7 @@ def pipeline_steps(frames: Any, batch: int = 65536) -> list[Any]:
 
 def write_mcap(path: Path, steps: list[Any]) -> Any:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     sink = McapSink(path, Config(), {"source": "benchmark", "mode": "benchmark"})
     for step in steps:
@@ -258,7 +259,9 @@ def measure(
         ):
             dt, n = timed(lambda p=path: read_only(p), repeat)
             figures.append(
-                Figure(key, label, n / dt, "frames/s", detail=f"open_log().batches(): {n} frames")
+                Figure(
+                    key, label, n / dt, "frames/s", detail=f"open_replay().batches(): {n} frames"
+                )
             )
         dt, n = timed(lambda: pipeline_only(frames), repeat)
         figures.append(

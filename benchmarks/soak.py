@@ -12,7 +12,7 @@ It passes when, over the whole run:
   queues without limit, so a bench falling behind would otherwise look lossless);
 * resident memory after the warm-up (the UI history ring fills in the first minute at
   1 kHz) grows by at most ``--mem-bound-mb`` (default 64 MB); with the TUI, the run lives in
-  the engine process (bench/engine.py) and memory is this process's plus the engine's;
+  the engine process (bench/engine/) and memory is this process's plus the engine's;
 * no exception anywhere: not in any thread (``threading.excepthook``), not logged at
   ERROR by any bench module, not in the runner, the logger or the TUI (the engine process
   reports its own thread exceptions and ERROR records).
@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bench.engine_child import ProblemLog
+from bench.engine.child import ProblemLog
 from benchmarks.common import machine_info, rss_mb
 
 UART_ONLY = {"noise", "truncation"}
@@ -66,7 +66,7 @@ def fault_schedule(duration_s: float, cycles: int = 3) -> list[dict[str, Any]]:
 
 def engine_rss_mb(session: Any) -> float:
     """Resident set size of the engine process a TUI session runs in (0 without one): with
-    the TUI attached, the run's memory is there (bench/engine.py)."""
+    the TUI attached, the run's memory is there (bench/engine/)."""
     pid = getattr(session, "pid", None)
     if pid is None:
         return 0.0

@@ -2,7 +2,7 @@
 
 ``python -m benchmarks.tui_1khz [--seconds 60]`` runs the whole `bench tui --emulate` stack
 headless (App.run_test, 100x30, 4 Hz snapshots, every panel rendered): in the engine process
-(bench/engine.py) the virtual board plays a 1 kHz x 3 channel scenario (~3060 frames/s with
+(bench/engine/) the virtual board plays a 1 kHz x 3 channel scenario (~3060 frames/s with
 BOARD_STATUS and SPEED_REF) on a private python-can virtual channel, a CanBusSource listens,
 the session runs the LiveRunner and records through its Recorder into an MCAP file; in this
 process the App polls it, operator marks are pressed on the way, and ``q`` quits exactly as
@@ -78,8 +78,8 @@ class TuiRun:
 
 def run(seconds: float = 60.0, workdir: str | None = None, marks: int = 3) -> TuiRun:
     from bench.config import Config
-    from bench.engine import start_engine
-    from bench.engine_plans import BoardPlan
+    from bench.engine.client import start_engine
+    from bench.engine.plans import BoardPlan
     from bench.tui.app import BenchApp
     from benchmarks.common import board_scenario
 
@@ -134,7 +134,8 @@ def _board_done(app: Any) -> bool:
 
 def _collect(out: TuiRun, session: Any, path: Path) -> None:
     """The engine's figures, and the finished MCAP file read back."""
-    from bench.mcaplog.reader import McapLog, read_events
+    from bench.mcaplog.reader import McapLog
+    from bench.mcaplog.recorded import read_events
 
     report = session.report
     if report is None:

@@ -17,7 +17,7 @@ from typing import BinaryIO, NamedTuple, TypeVar
 
 import numpy as np
 
-from bench.errors import BenchError
+from devices.errors import BenchError
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 

@@ -17,8 +17,8 @@ from typing import Any
 import can
 import numpy as np
 
-from bench.errors import BenchError
 from devices.base import LiveSource, Reconnector, SourceBatch, SourceNotice
+from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 

@@ -11,9 +11,9 @@ import argparse
 
 import can
 
-from bench.errors import BenchError
 from devices.base import LiveSource
 from devices.bus import CanBusSource
+from devices.errors import BenchError
 from devices.serial_port import DEFAULT_BAUD, SerialSource
 
 INTERFACES = sorted(can.VALID_INTERFACES)

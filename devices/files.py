@@ -3,7 +3,9 @@
 * ``.log``  candump ``-L`` text, the fast vectorised reader (:mod:`devices.candump`)
 * ``.asc`` ``.blf`` ``.trc`` ``.csv``  python-can's LogReader, batched
 * ``.bin``  raw UART capture (COBS packets), ``t`` = NaN (the UART carries no time)
-* ``.mcap`` the bench's own recordings (:mod:`devices.mcap_file`, imported lazily)
+
+The bench's own ``.mcap`` recordings are a bench format, read by :mod:`bench.mcaplog.source`;
+:func:`bench.replay.sources.open_replay` opens every replayable log, this module's and MCAP.
 
 Operator mistakes (missing file, unknown extension, unreadable or not-a-log file) are one
 :class:`BenchError` line at open time; corruption found while reading ends the stream
@@ -14,7 +16,6 @@ anything from struct.error to AssertionError on bad input, so they are wrapped w
 from __future__ import annotations
 
 import contextlib
-import importlib
 import math
 import os
 import struct
@@ -27,19 +28,19 @@ import can
 import numpy as np
 from can.io.blf import OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
 
-from bench.errors import BenchError
 from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
 from devices.candump import CandumpFileSource
+from devices.errors import BenchError
 from protocol.frames import empty_frames
 from protocol.uart import MAX_BODY, deframe_bytes
 
 UART_CHUNK_BYTES = 4 << 20
 CAN_LOGREADER_SUFFIXES = (".asc", ".blf", ".trc", ".csv")
-SUFFIXES = (".log", *CAN_LOGREADER_SUFFIXES, ".bin", ".mcap")
+SUFFIXES = (".log", *CAN_LOGREADER_SUFFIXES, ".bin")
 
 
-def _check_readable(path: Path) -> int:
+def check_readable(path: Path) -> int:
     """Size of a readable regular file, else a one-line BenchError naming it."""
     try:
         if path.is_dir():
@@ -54,39 +55,27 @@ def _check_readable(path: Path) -> int:
     return size
 
 
+def unknown_extension(path: Path, known: tuple[str, ...]) -> BenchError:
+    """The one-line error for a log whose extension no reader handles."""
+    suffix = path.suffix.lower()
+    return BenchError(
+        f"cannot read log {path}: unknown extension {suffix or '(none)'!r} ({' '.join(known)})"
+    )
+
+
 def open_log(path: str | os.PathLike[str], **kwargs: Any) -> FileSource:
     """The FileSource for ``path`` by extension (case-insensitive). ``kwargs`` go to the
     source (e.g. ``chunk_bytes``)."""
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
-        known = " ".join(SUFFIXES)
-        raise BenchError(f"cannot read log {p}: unknown extension {suffix or '(none)'!r} ({known})")
-    _check_readable(p)
+        raise unknown_extension(p, SUFFIXES)
+    check_readable(p)
     if suffix == ".log":
         return CandumpFileSource(p, **kwargs)
     if suffix == ".bin":
         return UartCaptureSource(p, **kwargs)
-    if suffix == ".mcap":
-        return _open_mcap(p, **kwargs)
     return CanLogReaderSource(p, **kwargs)
-
-
-def _open_mcap(path: Path, **kwargs: Any) -> FileSource:
-    try:
-        module = importlib.import_module("devices.mcap_file")
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("devices.mcap_file", "devices"):
-            raise BenchError(f"cannot read {path}: missing dependency {exc.name}") from exc
-        raise BenchError(
-            f"cannot read {path}: MCAP support (devices.mcap_file) is missing"
-        ) from exc
-    try:
-        return module.McapFrameSource(path, **kwargs)
-    except BenchError:
-        raise
-    except Exception as exc:
-        raise BenchError(f"cannot read {path}: {one_line(exc)}") from exc
 
 
 class _GuardedBLFReader(BLFReader):
@@ -124,7 +113,7 @@ class CanLogReaderSource(DiskFileSource):
     def __init__(self, path: str | os.PathLike[str], **reader_kwargs: Any) -> None:
         self.path = Path(path)
         self.description = f"{self.path.suffix.lstrip('.')} log {self.path}"
-        self._size = _check_readable(self.path)
+        self._size = check_readable(self.path)
         self._kwargs = {**_READER_DEFAULTS.get(self.path.suffix.lower(), {}), **reader_kwargs}
         self.frames = 0
         self._reader: can.io.generic.MessageReader | None = self._open()
@@ -200,7 +189,7 @@ class UartCaptureSource(DiskFileSource):
     def __init__(self, path: str | os.PathLike[str], chunk_bytes: int = UART_CHUNK_BYTES) -> None:
         self.path = Path(path)
         self.description = f"UART capture {self.path}"
-        self._size = _check_readable(self.path)
+        self._size = check_readable(self.path)
         self.chunk_bytes = max(1, int(chunk_bytes))
         self.frames = 0
         self.link_errors = 0

@@ -14,9 +14,9 @@ from typing import Any
 
 import serial
 
-from bench.errors import BenchError
 from devices.base import LiveSource, Reconnector, SourceBatch, SourceNotice
 from devices.bus import one_line
+from devices.errors import BenchError
 from protocol.frames import empty_frames, frames_from_raw
 from protocol.records import LinkError, RawFrame
 from protocol.uart import Deframer

@@ -17,8 +17,8 @@ from typing import IO, Any
 import can
 import numpy as np
 
-from bench.errors import BenchError
 from devices.bus import messages_from_frames, one_line
+from devices.errors import BenchError
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 from protocol.uart import encode_packet
 

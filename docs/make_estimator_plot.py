@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.config import Config  # noqa: E402
-from bench.pipeline import Pipeline  # noqa: E402
+from bench.pipeline.steps import Pipeline  # noqa: E402
 from devices.base import SourceBatch  # noqa: E402
 from devices.emulator import scenario_from_dict, simulate  # noqa: E402
 

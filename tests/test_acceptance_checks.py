@@ -8,17 +8,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bench.acceptance.checks import (
-    KINDS,
-    CheckSpec,
-    FaultInfo,
-    RunData,
-    StepWindow,
-    overall,
-    run_check,
-)
-from bench.events import EventKind, concat_events, make_events
-from bench.results import RESULT_DTYPE
+from bench.acceptance.checks.base import CheckSpec
+from bench.acceptance.checks.registry import KINDS, overall, run_check
+from bench.acceptance.model import FaultInfo, RunData, StepWindow
+from bench.records.events import EventKind, concat_events, make_events
+from bench.records.results import RESULT_DTYPE
 
 RATE = 100.0
 N_REF = 250  # the first sample's counter: k = n - 250

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from bench.acceptance import Options, load_plan, remeasure, run_plan, shipped_plans
+from bench.acceptance.plan import load_plan, shipped_plans
+from bench.acceptance.runner import Options, remeasure, run_plan
 
 
 @pytest.mark.parametrize("path", shipped_plans(), ids=lambda p: p.stem)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.acceptance.answers import load_answers, parse_answer, schedule_steps
 from bench.acceptance.plan import (
     PLAN_DIR,
     dump_toml,
@@ -15,7 +16,6 @@ from bench.acceptance.plan import (
     resolve_plan_path,
     shipped_plans,
 )
-from bench.acceptance.runner import load_answers, parse_answer, schedule_steps
 from bench.errors import ConfigError
 from devices.emulator import scenario_from_dict
 

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench.acceptance import Answer, Options, load_plan, parse_plan, run_plan
+from bench.acceptance.answers import Answer
+from bench.acceptance.plan import load_plan, parse_plan
+from bench.acceptance.runner import Options, run_plan
 from bench.cli import main
 
 # --------------------------------------------------------------------------- JUnit schema

@@ -6,8 +6,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.assembly import SCALAR_MAX, Assembler
-from bench.events import EventKind
+from bench.pipeline.assembly import SCALAR_MAX, Assembler
+from bench.records.events import EventKind
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
 from tests.helpers import adc, instant, pack, status_frame

@@ -13,7 +13,7 @@ import pytest
 
 from bench.cli import main
 from bench.config import Config, load_config
-from bench.mcaplog.reader import read_metadata, recorded_config
+from bench.mcaplog.recorded import read_metadata, recorded_config
 
 REPO = Path(__file__).resolve().parents[1]
 LEVEL_RUN = REPO / "devices" / "scenarios" / "level_run.toml"
@@ -156,7 +156,7 @@ def test_tui_replay_of_an_mcap_uses_the_recorded_calibration(
     assert main(["emulate", str(sc), "--out", str(mcap), "-q"]) == 0
     used: list[Config] = []
     import bench.commands.tui as tui_command
-    import bench.tui.session as session_module
+    import bench.live.session as session_module
 
     monkeypatch.setattr(session_module, "live_session", lambda setup, config, *a, **k: setup)
     monkeypatch.setattr(tui_command, "show", lambda setup: used.append(setup) or 0)
@@ -181,7 +181,7 @@ def test_tui_and_demo_on_an_emulated_board_use_it_as_built(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     import bench.commands.tui as tui_command
-    import bench.engine as engine
+    import bench.engine.client as engine
 
     sc = short_level_run(tmp_path, 0.5)
     plans: list[object] = []

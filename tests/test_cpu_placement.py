@@ -1,4 +1,4 @@
-"""Where the live path runs (bench/cpu_placement.py): the live threads -- acquisition,
+"""Where the live path runs (devices/cpu_placement.py): the live threads -- acquisition,
 processing, the in-process virtual board -- on one CPU, the MCAP writer process and the TUI's
 screen on the others, as ``BENCH_LIVE_CPU`` says; a bad setting is one line, exit 2."""
 
@@ -15,9 +15,13 @@ from pathlib import Path
 import can
 import pytest
 
-from bench import cpu_placement
 from bench.config import Config
-from bench.cpu_placement import (
+from bench.errors import BenchError
+from bench.live.runner import LiveRunner
+from bench.sinks.base import Sink
+from devices import cpu_placement
+from devices.bus import CanBusSource
+from devices.cpu_placement import (
     LIVE_CPU_ENV,
     live_cpu_label,
     live_cpus,
@@ -25,10 +29,6 @@ from bench.cpu_placement import (
     pin_thread,
     restore_thread,
 )
-from bench.errors import BenchError
-from bench.live import LiveRunner
-from bench.sinks import Sink
-from devices.bus import CanBusSource
 
 ROOT = Path(__file__).resolve().parent.parent
 placeable = pytest.mark.skipif(
@@ -167,8 +167,8 @@ def test_off_leaves_the_live_threads_to_the_scheduler(monkeypatch: pytest.Monkey
 def test_the_screen_of_an_engine_stays_off_the_live_cpu(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.engine import start_engine
-    from bench.engine_plans import BoardPlan
+    from bench.engine.client import start_engine
+    from bench.engine.plans import BoardPlan
 
     monkeypatch.delenv(LIVE_CPU_ENV, raising=False)
     allowed, _, rest = placement()

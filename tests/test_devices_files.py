@@ -1,4 +1,5 @@
-"""open_log: every format round trips, and every bad input ends in a notice or a BenchError.
+"""open_log / open_replay: every format round trips; every bad input ends in a notice or a
+BenchError.
 
 Round trips compare with what python-can's own reader returns for the file (and with the
 frames written, field by field, for what the format can carry).
@@ -8,7 +9,6 @@ from __future__ import annotations
 
 import os
 import signal
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from bench.errors import BenchError
+from bench.replay.sources import open_replay
 from devices.base import FileSource, SourceBatch
 from devices.bus import frames_from_messages
 from devices.files import UartCaptureSource, open_log
@@ -169,20 +170,20 @@ def test_unreadable_file(tmp_path: Path) -> None:
         path.chmod(0o600)
 
 
-def test_mcap_without_its_reader_is_bench_error(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
+def test_mcap_is_opened_by_the_bench_not_devices(tmp_path: Path) -> None:
     (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n")
-    monkeypatch.setitem(sys.modules, "devices.mcap_file", None)  # import fails
     with pytest.raises(BenchError) as e:
         open_log(tmp_path / "x.mcap")
-    assert "mcap" in one_line_error(e).lower()
+    assert "unknown extension '.mcap'" in one_line_error(e)
+    with pytest.raises(BenchError) as e:
+        open_replay(tmp_path / "x.txt")
+    assert ".mcap)" in one_line_error(e)
 
 
 def drain(path: Path) -> list[SourceBatch] | BenchError:
     """Read a file to the end; BenchError is an accepted outcome, anything else fails."""
     try:
-        return list(open_log(path).batches())
+        return list(open_replay(path).batches())
     except BenchError as exc:
         assert "\n" not in str(exc)
         return exc

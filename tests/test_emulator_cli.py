@@ -13,7 +13,15 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from devices.emulator import CanPlayer, PtyPlayer, load_scenario, simulate, start_virtual_board
+from bench.errors import BenchError
+from devices.emulator import (
+    CanPlayer,
+    PtyPlayer,
+    load_scenario,
+    simulate,
+    start_virtual_board,
+    write_output,
+)
 from protocol.uart import deframe_bytes
 
 SHORT = """
@@ -111,14 +119,11 @@ def test_bad_arguments_exit_2(scenario: Path, tmp_path: Path, capsys, argv, mess
     assert message in capsys.readouterr().err
 
 
-def test_mcap_output_hook(scenario: Path, tmp_path: Path, capsys):
-    try:
-        import bench.mcaplog.writer  # noqa: F401
-    except ImportError:
-        assert main(["emulate", str(scenario), "--out", str(tmp_path / "x.mcap")]) == 2
-        assert "mcap output needs" in capsys.readouterr().err
-    else:
-        assert main(["emulate", str(scenario), "--out", str(tmp_path / "x.mcap")]) == 0
+def test_mcap_output_is_written_by_the_bench(scenario: Path, tmp_path: Path, capsys):
+    assert main(["emulate", str(scenario), "--out", str(tmp_path / "x.mcap")]) == 0
+    assert (tmp_path / "x.mcap").read_bytes()[:8] == b"\x89MCAP0\r\n"
+    with pytest.raises(BenchError, match="mcap output needs"):
+        write_output(simulate(load_scenario(scenario)), tmp_path / "y.mcap")
 
 
 def test_list_builtin_scenarios(capsys):

@@ -1,4 +1,4 @@
-"""The engine process (bench/engine.py): a live TUI session run in a child process.
+"""The engine process (bench/engine/): a live TUI session run in a child process.
 
 The screen's rows must be the run's rows bit for bit (checked against a replay of the log the
 engine wrote), operator actions must reach the run, and however the run ends -- ``q``, the
@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.engine import EngineSession, ResultRing, start_engine
-from bench.engine_child import RowTap
-from bench.engine_plans import BoardPlan, EnginePlan
+from bench.engine.child import RowTap
+from bench.engine.client import EngineSession, ResultRing, start_engine
+from bench.engine.plans import BoardPlan, EnginePlan
 from bench.errors import BenchError
-from bench.pipeline import StepOutput
-from bench.results import RESULT_DTYPE
+from bench.pipeline.steps import StepOutput
+from bench.records.results import RESULT_DTYPE
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = Config(sample_rate_hz=200)
@@ -117,8 +117,8 @@ def test_tap_hands_over_each_row_once_and_only_the_newest_when_behind() -> None:
 def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any) -> None:
     """Snapshots bring only new rows; put together here they must be what the pipeline
     computes from the frames in the engine's log (replayed on its own)."""
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
 
     plan = board_plan(tmp_path, seconds=6.0, speed=3.0)
     session = engine(plan)
@@ -130,14 +130,14 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
     shown = session.snapshot(last=50_000)
     session.stop()
     assert drained["sent"] == session.report.frames_received > 0
-    expected = replay(open_log(plan.mcap), CONFIG).results
+    expected = replay(open_replay(plan.mcap), CONFIG).results
     assert 0 < len(shown.results) <= len(expected)
     assert shown.results.tobytes() == expected[: len(shown.results)].tobytes()
     assert session.recorder.files == [plan.mcap] and complete(plan.mcap)
 
 
 def test_operator_actions_reach_the_run_through_the_app(tmp_path: Path, engine: Any) -> None:
-    from bench.mcaplog.reader import read_events
+    from bench.mcaplog.recorded import read_events
     from bench.tui.app import BenchApp, next_tolerance
 
     session = engine(board_plan(tmp_path))
@@ -185,7 +185,7 @@ def test_a_build_error_in_the_engine_is_raised_here_as_it_was(tmp_path: Path) ->
 def test_log_folder_unusable_is_the_commands_one_line_error(tmp_path: Path) -> None:
     import argparse
 
-    from bench.engine_plans import LivePlan
+    from bench.engine.plans import LivePlan
 
     blocker = tmp_path / "logs"
     blocker.write_text("a file where the log folder should be")
@@ -238,8 +238,8 @@ def test_parent_gone_the_engine_finishes_the_log_and_exits(tmp_path: Path, end: 
 import os, signal, sys, time
 from pathlib import Path
 from bench.config import Config
-from bench.engine import start_engine
-from bench.engine_plans import BoardPlan
+from bench.engine.client import start_engine
+from bench.engine.plans import BoardPlan
 plan = BoardPlan(config=Config(sample_rate_hz=200), mcap=Path({str(mcap)!r}),
                  scenario={{"duration_s": 60.0, "sample_rate_hz": 200, "seed": 5}})
 session = start_engine(plan)

@@ -11,13 +11,13 @@ import itertools
 import numpy as np
 import pytest
 
-from bench.assembly import usable
 from bench.config import Config
-from bench.events import EventKind
 from bench.fusion.estimator import SCALAR_MAX, Estimator
 from bench.fusion.isolation import ResidualIsolator
 from bench.fusion.least_squares import geometry
-from bench.pipeline import Pipeline
+from bench.pipeline.steps import Pipeline
+from bench.records.events import EventKind
+from bench.records.samples import usable
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
 

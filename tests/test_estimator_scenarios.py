@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from bench.config import Config, EstimatorSettings
-from bench.events import EventKind
 from bench.fusion.isolation import Reason
-from bench.pipeline import Pipeline
+from bench.pipeline.steps import Pipeline
+from bench.records.events import EventKind
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
 from protocol.layout import G0, NOMINAL_SCALE

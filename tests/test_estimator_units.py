@@ -9,15 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from bench.assembly import SAMPLE_DTYPE
 from bench.config import EstimatorSettings, config_from_dict
 from bench.errors import ConfigError
-from bench.events import EventKind
 from bench.fusion.isolation import ExclusionLatch, Reason, StuckDetector
 from bench.fusion.kalman import ACCEL0_MPS2, SpeedKalman
 from bench.fusion.least_squares import FULL, geometry, solve
 from bench.fusion.speed_ref import ReferenceAcceleration, leaky_min
-from bench.records import SPEED_DTYPE
+from bench.records.board import SPEED_DTYPE
+from bench.records.events import EventKind
+from bench.records.samples import SAMPLE_DTYPE
 
 NOMINAL = tuple(math.radians(a) for a in (30.0, 0.0, -30.0))
 

@@ -14,8 +14,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.events import EVENT_DTYPE, EventKind, concat_events, make_events
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
+from bench.records.events import EVENT_DTYPE, EventKind, concat_events, make_events
 
 times = st.sampled_from([0.0, -0.0, 0.5, 1.0, 1.0, 2.0, math.inf, -math.inf, math.nan])
 

@@ -148,8 +148,8 @@ def _session(tmp_path: Path, channel: str) -> tuple[Any, Any, Any]:
     import can
 
     from bench.config import Config
-    from bench.liveopts import LiveSetup, start_recording
-    from bench.tui.session import live_session
+    from bench.live.session import live_session
+    from bench.live.setup import LiveSetup, start_recording
     from devices.bus import CanBusSource
     from devices.emulator import scenario_from_dict, start_virtual_board
 
@@ -189,7 +189,7 @@ def test_tui_survives_disk_full_and_shows_it(
 ) -> None:
     import builtins
 
-    import bench.mcaplog.writer as writer
+    import bench.mcaplog.file as writer
     from bench.tui.app import BenchApp
 
     real_open = builtins.open

@@ -24,8 +24,8 @@ import can
 import pytest
 
 from bench.config import Config
-from bench.events import EventKind
-from bench.live import LiveRunner
+from bench.live.runner import LiveRunner
+from bench.records.events import EventKind
 from devices.emulator import PtyPlayer, scenario_from_dict, simulate, start_virtual_board
 
 _ids = itertools.count(1)
@@ -52,7 +52,7 @@ def event_kinds(runner: LiveRunner) -> list[int]:
 
 
 def start(source: Any, tmp_path: Path) -> tuple[LiveRunner, Any, Path]:
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
 
     path = tmp_path / "run.mcap"
     mcap = McapSink(path, CONFIG, {"source": "fault test"}, flush_interval_s=0.2)

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 
 from bench.config import Config
 from bench.errors import BenchError
-from bench.pipeline import Pipeline
+from bench.pipeline.steps import Pipeline
 from devices.base import SourceBatch
 from protocol.crc import frame_crc8_batch
 from protocol.frames import FRAME_DTYPE
@@ -108,7 +108,7 @@ def test_pipeline_takes_any_board_like_stream(
 @pytest.fixture(scope="module")
 def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     """A small MCAP file as a live run writes it (frames, samples, results, events)."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from devices.emulator import scenario_from_dict, simulate
 
     sim = simulate(scenario_from_dict({"duration_s": 0.5, "sample_rate_hz": 200, "seed": 3}))
@@ -125,8 +125,8 @@ def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 
 def _read_all(path: Path) -> Any:
     from bench.mcaplog.reader import McapLog
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
 
     try:
         with McapLog(path) as log:
@@ -134,7 +134,7 @@ def _read_all(path: Path) -> Any:
             log.metadata_dict()
             log.read_frames()
             log.verify()
-        source = open_log(path)
+        source = open_replay(path)
     except BenchError as exc:
         assert "\n" not in str(exc).strip()
         return None

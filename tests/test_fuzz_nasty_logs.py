@@ -65,8 +65,8 @@ def _reseal(frames: np.ndarray) -> np.ndarray:
 
 def _mcap_bytes(tmp: Path, frames: np.ndarray) -> bytes:
     from bench.config import Config
-    from bench.mcaplog.writer import McapSink
-    from bench.pipeline import Pipeline
+    from bench.mcaplog.sink import McapSink
+    from bench.pipeline.steps import Pipeline
     from devices.base import SourceBatch
 
     path = tmp / "src.mcap"
@@ -279,8 +279,8 @@ def test_noise_warnings_are_bounded(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
     """A single absurd receive time mid-log costs at most the samples around it."""
     from bench.config import Config
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
     from devices.writers import write_candump
 
     frames = _frames(3.0)
@@ -291,16 +291,16 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
         f["t"][len(f) // 2] = bad
         path = tmp_path / f"bad_{bad}.log"
         write_candump(path, f)
-        out = replay(open_log(path), Config(), collect=True)
+        out = replay(open_replay(path), Config(), collect=True)
         assert len(out.results) >= clean - 3, f"t={bad}: {len(out.results)} of {clean} samples"
         assert out.pipeline.stats.samples_lost <= 3, f"t={bad}: {out.pipeline.stats.samples_lost}"
 
 
 def replay_count(frames: np.ndarray, path: Path) -> int:
     from bench.config import Config
-    from bench.replay import replay
-    from devices.files import open_log
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
     from devices.writers import write_candump
 
     write_candump(path, frames)
-    return len(replay(open_log(path), Config(), collect=True).results)
+    return len(replay(open_replay(path), Config(), collect=True).results)

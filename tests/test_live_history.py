@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import bench.live as live
+import bench.live.runner as live
 from bench.config import Config
-from bench.pipeline import StepOutput
-from bench.results import RESULT_DTYPE
+from bench.pipeline.steps import StepOutput
+from bench.records.results import RESULT_DTYPE
 from devices.base import LiveSource, SourceBatch
 
 

@@ -10,9 +10,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.arrays import concat_records
-from bench.live import LatencyRing
-from bench.stats import Stats
+from bench.live.runner import LatencyRing
+from bench.pipeline.stats import Stats
+from bench.records.arrays import concat_records
 from bench.tui.panels.plot import PlotPacer
 from protocol.frames import FRAME_DTYPE
 
@@ -107,7 +107,7 @@ def test_the_emulated_board_waits_for_the_bench(tmp_path) -> None:  # type: igno
     starts), so no frame queues up in the bus while the run and its log are set up."""
     import time
 
-    from bench.liveopts import open_emulator
+    from bench.live.setup import open_emulator
 
     sc = tmp_path / "short.toml"
     sc.write_text("duration_s = 5.0\nsample_rate_hz = 200\nseed = 3\n", encoding="utf-8")

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.mcaplog.writer import McapFile, MessageEncoder
-from devices.mcap_file import McapFrameSource
+from bench.mcaplog.encoder import MessageEncoder
+from bench.mcaplog.file import McapFile
+from bench.mcaplog.source import McapFrameSource
 from protocol.frames import FRAME_DTYPE
 
 N = 1_000_000

@@ -16,8 +16,11 @@ import pytest
 
 from bench.config import Config
 from bench.mcaplog import schemas as S
+from bench.mcaplog.emulation import write_emulation
+from bench.mcaplog.encoder import MessageEncoder
+from bench.mcaplog.file import McapFile
 from bench.mcaplog.reader import McapLog
-from bench.mcaplog.writer import McapFile, McapSink, MessageEncoder, write_emulation
+from bench.mcaplog.sink import McapSink
 from tests.mcap_js import McapJs, install
 from tests.test_mcap_support import emulated, run_pipeline, synthetic_stream, uart_batches
 

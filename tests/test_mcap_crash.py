@@ -24,7 +24,7 @@ sys.path.insert(0, sys.argv[3])
 from bench.config import Config
 module, name = sys.argv[4].rsplit(".", 1)
 McapSink = getattr(importlib.import_module(module), name)
-from bench.pipeline import StepOutput
+from bench.pipeline.steps import StepOutput
 from protocol.frames import FRAME_DTYPE
 
 def on_term(signum, frame):  # what bench run does: SIGTERM -> clean shutdown
@@ -53,7 +53,7 @@ print("closed", sink.frames_logged, sink.error, flush=True)
 """
 
 
-THREAD_SINK = "bench.mcaplog.writer.McapSink"
+THREAD_SINK = "bench.mcaplog.sink.McapSink"
 PROCESS_SINK = "bench.mcaplog.writer_process.McapProcessSink"
 
 

@@ -11,11 +11,14 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.events import EVENT_DTYPE, EventKind, describe, severity
 from bench.mcaplog import schemas as S
-from bench.mcaplog.reader import McapLog, read_events, read_frames, read_results
-from bench.mcaplog.writer import McapFile, McapSink, MessageEncoder
-from devices.mcap_file import McapFrameSource
+from bench.mcaplog.encoder import MessageEncoder
+from bench.mcaplog.file import McapFile
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import read_events, read_frames, read_results
+from bench.mcaplog.sink import McapSink
+from bench.mcaplog.source import McapFrameSource
+from bench.records.events import EVENT_DTYPE, EventKind, describe, severity
 from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
 
 REPLAY_TOPICS = {S.FRAME_TOPIC, S.LINK_ERROR_TOPIC, S.NOTICE_TOPIC}

@@ -19,8 +19,9 @@ import pytest
 from bench.config import ChannelCal, Config
 from bench.mcaplog import schemas as S
 from bench.mcaplog.compare import compare_results
-from bench.mcaplog.reader import (
-    McapLog,
+from bench.mcaplog.emulation import write_emulation
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import (
     read_attachments,
     read_events,
     read_frames,
@@ -32,10 +33,10 @@ from bench.mcaplog.reader import (
     read_topic,
     recorded_config,
 )
-from bench.mcaplog.writer import McapSink, write_emulation
-from bench.pipeline import StepOutput
+from bench.mcaplog.sink import McapSink
+from bench.mcaplog.source import McapFrameSource
+from bench.pipeline.steps import StepOutput
 from devices.base import SourceBatch
-from devices.mcap_file import McapFrameSource
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import Outcome
 from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
@@ -107,11 +108,11 @@ def test_replay_of_the_mcap_gives_the_live_csv_byte_for_byte(synthetic) -> None:
     assert compare_results(recorded, replayed).identical
 
 
-def test_replay_through_devices_files_open_log(synthetic) -> None:
-    from devices.files import open_log
+def test_replay_through_open_replay(synthetic) -> None:
+    from bench.replay.sources import open_replay
 
     _, path, _, live_results, _ = synthetic
-    source = open_log(path)
+    source = open_replay(path)
     assert isinstance(source, McapFrameSource)
     replayed, _ = run_pipeline(list(source.batches()), Config())
     assert csv_text(replayed) == csv_text(live_results)
@@ -206,7 +207,7 @@ def test_every_emulator_fault_kind_over_uart_frames_in_file_equal_frames_receive
 
 
 def test_log_and_mcap_of_the_same_emulation_replay_identically(tmp_path: Path) -> None:
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
     from devices.writers import write_candump
 
     sim = emulated(14.0, seed=11)
@@ -215,7 +216,7 @@ def test_log_and_mcap_of_the_same_emulation_replay_identically(tmp_path: Path) -
     assert counts["frames"] == len(sim.frames) and counts["truth"] == len(sim.truth)
     outs = []
     for name in ("run.log", "run.mcap"):
-        src = open_log(tmp_path / name)
+        src = open_replay(tmp_path / name)
         res, _ = run_pipeline(list(src.batches()), Config())
         src.close()
         outs.append(csv_text(res))
@@ -246,7 +247,7 @@ def test_nan_receive_times_get_a_monotonic_substitute(tmp_path: Path) -> None:
 def test_write_never_blocks_and_counts_drops(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.mcaplog import writer as W
+    from bench.mcaplog import encoder as W
 
     slow = W.MessageEncoder.write_frames
 
@@ -289,7 +290,7 @@ def test_unwritable_path_is_recorded_not_raised(
 def test_disk_full_midway_keeps_what_was_written(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from bench.mcaplog import writer as W
+    from bench.mcaplog import file as W
 
     real_write_chunk = W.McapFile._write_chunk
     calls = {"n": 0}

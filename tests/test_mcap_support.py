@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
-from bench.pipeline import Pipeline, StepOutput
-from bench.results import RESULT_DTYPE, CsvWriter
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import RESULT_DTYPE, CsvWriter
 from devices.base import SourceBatch, SourceNotice
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
@@ -217,7 +217,7 @@ def emulated(seconds: float = 15.0, *, seed: int = 5, faults: bool = True) -> An
 def uart_batches(sim: Any, packets_per_batch: int = 300) -> list[SourceBatch]:
     """The emulator's UART byte stream as a serial receiver sees it (the acceptance
     runner's feed: packet by packet at its send time, FLAG_UART frames, link errors)."""
-    from bench.acceptance.runner import uart_batches as feed
+    from bench.acceptance.feeds import uart_batches as feed
 
     return list(feed(sim, packets_per_batch))
 

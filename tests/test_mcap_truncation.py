@@ -11,9 +11,11 @@ import pytest
 
 from bench.cli import main
 from bench.config import Config
-from bench.mcaplog.reader import McapLog, McapReadError, read_frames
-from bench.mcaplog.writer import McapSink
-from devices.mcap_file import McapFrameSource
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import read_frames
+from bench.mcaplog.sink import McapSink
+from bench.mcaplog.source import McapFrameSource
+from bench.mcaplog.structure import McapReadError
 from tests.test_mcap_support import run_pipeline, synthetic_stream
 
 

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.mcaplog.reader import McapLog, read_results
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.recorded import read_results
 from bench.mcaplog.writer_process import McapProcessSink, pack_steps, unpack_steps
-from bench.pipeline import Pipeline, StepOutput
+from bench.pipeline.steps import Pipeline, StepOutput
 from devices.base import SourceBatch, SourceNotice
 from devices.emulator import scenario_from_dict, simulate
 from protocol.layout import Outcome
@@ -172,8 +173,8 @@ def test_ctrl_c_and_sigterm_do_not_stop_the_writer(tmp_path: Path) -> None:
 
 def test_log_writer_setting(monkeypatch: pytest.MonkeyPatch) -> None:
     from bench.errors import BenchError
-    from bench.liveopts import recording_sink_class
-    from bench.mcaplog.writer import McapSink
+    from bench.live.setup import recording_sink_class
+    from bench.mcaplog.sink import McapSink
 
     monkeypatch.delenv("BENCH_LOG_WRITER", raising=False)
     assert recording_sink_class() is McapProcessSink

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.events import EventKind
-from bench.pipeline import Pipeline, StepOutput
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.events import EventKind
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
 from protocol.records import FLAG_EXTENDED

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from bench.prefetch import prefetch
+from bench.replay.prefetch import prefetch
 
 
 def test_items_come_in_order() -> None:

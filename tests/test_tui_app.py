@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.live import LiveRunner
-from bench.liveopts import LiveSetup
-from bench.replay import replay
+from bench.live.runner import LiveRunner
+from bench.live.session import Session
+from bench.live.setup import LiveSetup
+from bench.replay.run import replay
 from bench.tui.app import BenchApp, next_tolerance
 from bench.tui.panels.pairs import PairsPanel
-from bench.tui.session import Session
 from tests.test_tui_support import (
     FakeSink,
     ListFile,
@@ -228,7 +228,7 @@ def test_tolerance_ladder() -> None:
 
 
 def test_quit_finalises_the_mcap_file(tmp_path: Path) -> None:
-    mcap_writer = pytest.importorskip("bench.mcaplog.writer")
+    mcap_writer = pytest.importorskip("bench.mcaplog.sink")
     from mcap.reader import make_reader
 
     frames = make_frames(400)

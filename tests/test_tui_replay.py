@@ -1,6 +1,6 @@
 """Replay in the TUI: ReplaySource pacing, flow control, pause/step, run-to-next-failure, and
 the replay keys driving it. Expectations come from the frames themselves (their receive
-times, the instant the fault starts) and from a plain bench.replay of the same log."""
+times, the instant the fault starts) and from a plain bench.replay.run of the same log."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import time
 import numpy as np
 
 from bench.config import Config
-from bench.live import LiveRunner
-from bench.liveopts import LiveSetup
-from bench.replay import replay
+from bench.live.runner import LiveRunner
+from bench.live.session import Session, wait_until
+from bench.live.setup import LiveSetup
+from bench.replay.player import ReplaySource, ReplayTap
+from bench.replay.run import replay
 from bench.tui.app import BenchApp
 from bench.tui.panels.pairs import PairsPanel
-from bench.tui.replay_source import ReplaySource, ReplayTap
-from bench.tui.session import Session, wait_until
 from tests.test_tui_app import SIZE, wait_for
 from tests.test_tui_support import ListFile, make_frames, screen_text
 
@@ -109,7 +109,8 @@ def test_replay_keys_in_the_app() -> None:
         app = BenchApp(session, poll_hz=8)
         session.start()
         async with app.run_test(size=SIZE) as pilot:
-            await pilot.pause()
+            # the footer is drawn after the first refresh, which a loaded machine delays
+            await wait_for(pilot, lambda: "spc Play" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
             for key in ("spc Play", "s Speed", "n Step", "j Next fail"):
                 assert key in footer

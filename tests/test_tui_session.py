@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import threading
 
-from bench.pipeline import StepOutput
-from bench.tui.session import Recorder
+from bench.live.session import Recorder
+from bench.pipeline.steps import StepOutput
 from protocol.frames import empty_frames
 from tests.test_tui_support import FakeSink
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.live import Snapshot
+from bench.live.runner import Snapshot
+from bench.live.session import Session
 from bench.tui.app import BenchApp
-from bench.tui.session import Session
 from protocol.layout import STATUS_SELFTEST
 from tests.test_tui_support import T0, make_frames, settled_snapshot
 

@@ -14,7 +14,7 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from bench.config import Config
-from bench.live import LiveRunner, Snapshot
+from bench.live.runner import LiveRunner, Snapshot
 from devices.base import FileSource, LiveSource, SourceBatch
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
@@ -173,8 +173,8 @@ class NoEstimator:
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        from bench.events import EVENT_DTYPE
-        from bench.results import RESULT_DTYPE
+        from bench.records.events import EVENT_DTYPE
+        from bench.records.results import RESULT_DTYPE
 
         names = ["gradient_signed", "gradient_ls", "u", "w", "a_ref", "residual"]
         dtype = np.dtype([(n, RESULT_DTYPE[n]) for n in [*names, "degraded", "excluded"]])

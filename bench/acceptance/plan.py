@@ -15,12 +15,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from bench.acceptance.checks import KINDS, CheckSpec, Param
+from bench.acceptance.checks.base import CheckSpec, Param
+from bench.acceptance.checks.registry import KINDS
 from bench.acceptance.signoff import DUT_KEYS, Dut
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
-from bench.textfile import path_or_packaged, read_text_file
-from bench.tomlcheck import Table, tname
+from devices.textfile import path_or_packaged, read_text_file
+from devices.tomlcheck import Table, tname
 
 PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
 """The plan library shipped with the bench (``bench/plans/*.toml``)."""

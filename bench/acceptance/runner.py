@@ -3,7 +3,7 @@
 Three ways to run a plan, one measuring path:
 
 * emulated (default for a plan with a scenario): simulate the scenario, push its frames
-  through the same Pipeline a live run uses as fast as possible (bench.replay.run_steps),
+  through the same Pipeline a live run uses as fast as possible (bench.replay.run.run_steps),
   with the MCAP sink writing DIR/run.mcap. Deterministic; no wall clock involved.
 * realtime (``--realtime``): the same scenario played by the in-process virtual board on
   python-can's virtual bus, received by LiveRunner -- the live path end to end.
@@ -17,13 +17,10 @@ reason in the record, so an unattended run always leaves junit.xml and record.js
 from __future__ import annotations
 
 import argparse
-import contextlib
-import math
 import sys
 import threading
 import time
-import tomllib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -32,106 +29,25 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
-from bench.acceptance.checks import (
-    EXIT_CODES,
-    FaultInfo,
-    Measurement,
-    RunData,
-    StepWindow,
-    not_measured,
-    overall,
-    run_check,
-)
+from bench.acceptance.answers import Answer, answer_for, parse_answer, schedule_steps, step_window
+from bench.acceptance.checks.base import not_measured
+from bench.acceptance.checks.registry import overall, run_check
+from bench.acceptance.feeds import BATCH_FRAMES, can_batches, fault_infos, uart_batches
+from bench.acceptance.model import Measurement, RunData, StepWindow
+from bench.acceptance.outcome import RunOutcome
 from bench.acceptance.plan import Plan, Step
 from bench.config import Config, load_config
-from bench.errors import BenchError, ConfigError
-from bench.events import EVENT_DTYPE, concat_events
-from bench.pipeline import Pipeline, StepOutput
-from bench.replay import run_steps
-from bench.results import RESULT_DTYPE
-from devices.base import SourceBatch
+from bench.errors import BenchError
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.events import EVENT_DTYPE, concat_events
+from bench.records.results import RESULT_DTYPE
+from bench.replay.run import run_steps
 
 SILENCE_S = 10.0
 """A live run with no new sample for this long (wall clock) has lost its board: error."""
+
 DRAIN_S = 0.3
 """After the virtual board's last frame: time for it to cross the virtual bus."""
-BATCH_FRAMES = 65536
-
-
-# --------------------------------------------------------------------------- answers
-
-
-@dataclass(frozen=True, slots=True)
-class Answer:
-    """An operator's answer to a step: go on, skip it, or abort the run."""
-
-    answer: str = "ok"  # ok | skip | abort
-    reference_permil: float | None = None  # the reference inclinometer's reading
-    note: str = ""
-
-
-def parse_answer(text: str) -> Answer:
-    """Console input: Enter = ok, a number = ok with that reference reading, s = skip,
-    q = abort, anything else = ok with a note."""
-    s = text.strip()
-    if not s:
-        return Answer()
-    low = s.lower()
-    if low in ("s", "skip"):
-        return Answer("skip")
-    if low in ("q", "quit", "abort"):
-        return Answer("abort")
-    with contextlib.suppress(ValueError):
-        v = float(s)
-        if math.isfinite(v):
-            return Answer(reference_permil=v)
-    return Answer(note=s)
-
-
-def load_answers(path: str | Path) -> list[Answer]:
-    """A steps file: ``[[answers]]`` in step order with ``answer`` ("ok" | "skip" |
-    "abort"), optional ``reference_permil`` and ``note``. ConfigError naming the key."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read steps file: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
-    for key in data:
-        if key != "answers":
-            raise ConfigError(f"{p.name}: {key}: unknown key (expected: answers)")
-    items = data.get("answers", [])
-    if not isinstance(items, list):
-        raise ConfigError(f"{p.name}: answers: expected an array of tables ([[answers]])")
-    out = []
-    for i, item in enumerate(items, 1):
-        where = f"{p.name}: answers[{i}]"
-        if not isinstance(item, dict):
-            raise ConfigError(f"{where}: expected a table")
-        for key in item:
-            if key not in ("answer", "reference_permil", "note"):
-                raise ConfigError(
-                    f"{where}.{key}: unknown key (expected one of: answer, note, reference_permil)"
-                )
-        ans = item.get("answer", "ok")
-        if ans not in ("ok", "skip", "abort"):
-            raise ConfigError(f"{where}.answer: {ans!r} is not one of 'ok', 'skip', 'abort'")
-        ref = item.get("reference_permil")
-        if ref is not None and (
-            isinstance(ref, bool) or not isinstance(ref, int | float) or not math.isfinite(ref)
-        ):
-            raise ConfigError(f"{where}.reference_permil: expected a number, got {ref!r}")
-        note = item.get("note", "")
-        if not isinstance(note, str):
-            raise ConfigError(f"{where}.note: expected a string, got {note!r}")
-        out.append(Answer(ans, None if ref is None else float(ref), note))
-    return out
-
-
-# --------------------------------------------------------------------------- options
 
 
 @dataclass
@@ -149,38 +65,11 @@ class Options:
     command: str = field(default_factory=lambda: " ".join(sys.argv))
 
 
-@dataclass
-class Outcome:
-    """A finished acceptance run."""
-
-    plan: Plan
-    verdict: str
-    measurements: list[Measurement]
-    run: RunData | None
-    config: Config
-    mode: str
-    source: str
-    started_utc: str
-    finished_utc: str
-    wall_s: float
-    out_dir: Path
-    error: str | None = None
-    files: dict[str, Path] = field(default_factory=dict)
-    info: dict[str, Any] = field(default_factory=dict)  # sim summary, stats, fault record
-
-    @property
-    def exit_code(self) -> int:
-        return EXIT_CODES[self.verdict]
-
-
 def has_live_source(args: argparse.Namespace | None) -> bool:
     if args is None:
         return False
     names = ("interface", "channel", "bitrate", "serial", "emulate")
     return any(getattr(args, n, None) is not None for n in names)
-
-
-# --------------------------------------------------------------------------- collecting
 
 
 class Collector:
@@ -223,59 +112,6 @@ class Collector:
         return concat_events(parts) if parts else np.zeros(0, dtype=EVENT_DTYPE)
 
 
-# --------------------------------------------------------------------------- sources
-
-
-def can_batches(frames: np.ndarray, size: int = BATCH_FRAMES) -> Iterator[SourceBatch]:
-    for i in range(0, len(frames), size):
-        yield SourceBatch(frames[i : i + size])
-
-
-def uart_batches(sim: Any, packets_per_batch: int = 2048) -> Iterator[SourceBatch]:
-    """The UART byte stream as a receiver sees it: packet by packet at its send time, so
-    frames get receive times and broken packets become link errors at their own time."""
-    from protocol.frames import frames_from_raw
-    from protocol.uart import Deframer
-
-    stream = sim.uart_stream()
-    data, ends, times = stream.data, stream.packet_end, stream.packet_t
-    de = Deframer()
-    start = 0
-    for i0 in range(0, len(ends), packets_per_batch):
-        raw: list[Any] = []
-        errors: list[Any] = []
-        for i in range(i0, min(i0 + packets_per_batch, len(ends))):
-            end = int(ends[i])
-            fr, er = de.feed(data[start:end], float(times[i]))
-            raw += fr
-            errors += er
-            start = end
-        yield SourceBatch(frames_from_raw(raw), errors)
-    tail_frames, tail_errors = de.feed(data[start:], float(times[-1]) if len(times) else 0.0)
-    _, flushed = de.flush()
-    if tail_frames or tail_errors or flushed:
-        yield SourceBatch(frames_from_raw(tail_frames), tail_errors + flushed)
-
-
-def fault_infos(sim: Any, link: str) -> tuple[FaultInfo, ...]:
-    """The emulator's record of what each fault did, as the checks need it."""
-    from devices.emulator.faults import target_channels
-
-    effects = list(sim.effects)
-    if link == "uart":
-        effects += list(sim.uart_effects())
-    out = []
-    for e in sorted(effects, key=lambda e: e.fault.index):
-        f = e.fault
-        onset = int(np.min(e.samples)) if len(e.samples) else None
-        out.append(
-            FaultInfo(
-                f.index, f.kind, target_channels(f), f.label, f.start_s, f.end_s, onset, e.count
-            )
-        )
-    return tuple(out)
-
-
 def count_logged_frames(path: Path) -> int:
     """Frames in an MCAP log, counted from the file itself (not from the writer)."""
     from bench.mcaplog import schemas
@@ -283,9 +119,6 @@ def count_logged_frames(path: Path) -> int:
 
     with McapLog(path) as log:
         return int(log.message_counts().get(schemas.FRAME_TOPIC, 0))
-
-
-# --------------------------------------------------------------------------- helpers
 
 
 def _now() -> str:
@@ -298,41 +131,6 @@ def run_config(plan: Plan, config_path: str | None) -> Config:
     if config_path:
         return load_config(config_path)
     return plan.config()
-
-
-def schedule_steps(
-    steps: tuple[Step, ...], answers: list[Answer] | None, begin_s: float = 0.0
-) -> tuple[StepWindow, ...]:
-    """Windows of steps answered at once (emulated runs): each starts at its at_s or when
-    the previous one ended, whichever is later."""
-    out = []
-    t = begin_s
-    for s in steps:
-        a = _answer_for(s, answers)
-        if a.answer == "abort":
-            raise BenchError(f"step {s.index} aborted by the steps file")
-        start = max(t, s.at_s or 0.0)
-        out.append(_window(s, a, start))
-        t = start + (0.0 if a.answer == "skip" else s.settle_s + s.measure_s)
-    return tuple(out)
-
-
-def _answer_for(step: Step, answers: list[Answer] | None) -> Answer:
-    if answers is None:
-        return Answer()
-    if step.index > len(answers):
-        raise BenchError(
-            f"the steps file answers {len(answers)} steps, the plan has step {step.index}"
-        )
-    return answers[step.index - 1]
-
-
-def _window(step: Step, a: Answer, start: float) -> StepWindow:
-    expected = step.gradient_permil if a.reference_permil is None else a.reference_permil
-    frm = start + step.settle_s
-    return StepWindow(
-        step.index, step.prompt, expected, start, frm, frm + step.measure_s, a.answer, a.note
-    )
 
 
 def _metadata(plan: Plan, config: Config, source: str, mode: str, command: str) -> dict[str, str]:
@@ -415,14 +213,11 @@ def _uart_sent(sim: Any) -> int:
     return len(stream) - stream.packets_broken
 
 
-# --------------------------------------------------------------------------- run modes
-
-
 def _run_emulated(
     plan: Plan, config: Config, opts: Options, info: dict[str, Any]
 ) -> tuple[RunData, str]:
     """Simulate, then the pipeline as fast as it goes, logging to DIR/run.mcap."""
-    from bench.mcaplog.writer import McapSink
+    from bench.mcaplog.sink import McapSink
     from devices.emulator import simulate
 
     sim = simulate(plan.scenario)
@@ -466,9 +261,9 @@ def _run_live(
     plan: Plan, config: Config, opts: Options, info: dict[str, Any], setup: Any, mode: str
 ) -> tuple[RunData, str]:
     """LiveRunner on an open source; operator steps in this thread; stop when done."""
-    from bench.live import LiveRunner
-    from bench.liveopts import run_metadata
-    from bench.mcaplog.writer import McapSink
+    from bench.live.runner import LiveRunner
+    from bench.live.setup import run_metadata
+    from bench.mcaplog.sink import McapSink
 
     player = setup.emulator
     sim = getattr(player, "simulation", None)
@@ -526,7 +321,7 @@ def _run_live(
                 start = max(s.at_s, prev_end)
             else:
                 start = run_time() or 0.0  # the operator's Enter
-            w = _window(s, a, start)
+            w = step_window(s, a, start)
             prev_end = w.to_s if a.answer != "skip" else start
             windows.append(w)
             runner.mark(f"step {s.index} {a.answer}: {s.prompt} (expect {w.expected_permil:g})")
@@ -571,7 +366,7 @@ def _run_live(
 
 def _ask(step: Step, opts: Options) -> Answer:
     if opts.answers is not None:
-        a = _answer_for(step, opts.answers)
+        a = answer_for(step, opts.answers)
         opts.say(f"step {step.index}: {step.prompt} -> {a.answer} (steps file)")
         return a
     if opts.yes:
@@ -589,9 +384,6 @@ def _ask(step: Step, opts: Options) -> Answer:
         return Answer("abort")
 
 
-# --------------------------------------------------------------------------- entry points
-
-
 def prepare_out_dir(path: Path) -> Path:
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -600,12 +392,12 @@ def prepare_out_dir(path: Path) -> Path:
     return path
 
 
-def run_plan(plan: Plan, opts: Options) -> Outcome:
+def run_plan(plan: Plan, opts: Options) -> RunOutcome:
     """Run a plan and measure its checks; write junit.xml, record.json, report.html.
 
     Operator mistakes found before the run starts (no source, bad config, no way to answer
     the steps) raise BenchError; anything after that is verdict "error" in the record."""
-    from bench.liveopts import open_emulator, open_live
+    from bench.live.setup import open_emulator, open_live
 
     out = prepare_out_dir(opts.out_dir)
     config = run_config(plan, opts.config_path)
@@ -666,7 +458,7 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
     if error is not None:
         measurements = [not_measured(c, "error", f"not measured: {error}") for c in plan.checks]
     verdict = "error" if error is not None else overall(measurements)
-    outcome = Outcome(
+    outcome = RunOutcome(
         plan=plan,
         verdict=verdict,
         measurements=measurements,
@@ -681,22 +473,22 @@ def run_plan(plan: Plan, opts: Options) -> Outcome:
         error=error,
         info=info,
     )
-    from bench.acceptance.report import write_reports
+    from bench.acceptance.report.write import write_reports
 
     write_reports(outcome, plots=opts.plots)
     return outcome
 
 
-def remeasure(outcome: Outcome, mcap_path: Path | None = None) -> list[Measurement]:
+def remeasure(outcome: RunOutcome, mcap_path: Path | None = None) -> list[Measurement]:
     """The checks again, from the run's MCAP log replayed through a fresh pipeline.
 
     What the log cannot hold (emulator truth, fault record, frames sent, step windows) is
     taken from the original run; samples, events and frame counts come from the file."""
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     assert outcome.run is not None
     path = mcap_path or outcome.files["mcap"]
-    source = open_log(path)
+    source = open_replay(path)
     collector = Collector()
     pipeline = Pipeline(outcome.config)
     try:

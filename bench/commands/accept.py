@@ -17,7 +17,7 @@ from rich.table import Table
 from bench.errors import BenchError
 
 if TYPE_CHECKING:
-    from bench.acceptance.runner import Outcome
+    from bench.acceptance.outcome import RunOutcome
 
 _STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
 
@@ -94,8 +94,9 @@ def list_table() -> Table:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.acceptance.answers import load_answers
     from bench.acceptance.plan import load_plan
-    from bench.acceptance.runner import Options, has_live_source, load_answers, run_plan
+    from bench.acceptance.runner import Options, has_live_source, run_plan
 
     console = Console()
     if args.list:
@@ -133,8 +134,8 @@ def run(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
-def result_table(outcome: Outcome) -> Table:
-    from bench.acceptance.report import format_limits, format_value
+def result_table(outcome: RunOutcome) -> Table:
+    from bench.acceptance.report.text import format_limits, format_value
 
     table = Table(title=f"acceptance {outcome.plan.name}")
     table.add_column("check", style="bold")
@@ -149,7 +150,7 @@ def result_table(outcome: Outcome) -> Table:
     return table
 
 
-def print_outcome(outcome: Outcome, console: Console) -> None:
+def print_outcome(outcome: RunOutcome, console: Console) -> None:
     """The table, then one line per check that did not pass: which one and by how much."""
     console.print(result_table(outcome))
     for m in outcome.measurements:

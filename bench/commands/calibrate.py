@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.calibration import calibrate, read_table, record
     from bench.config import load_config
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     reference, table = args.reference, None
     if reference is not None and reference not in ("speed", "level"):
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         reference = "table"
     config = load_config(args.config)
     print(f"bench: starting from {config.announcement()}")
-    source = open_log(args.log)
+    source = open_replay(args.log)
     try:
         rec = record(source.batches(), config)
     finally:

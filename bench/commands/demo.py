@@ -13,7 +13,7 @@ from pathlib import Path
 
 import devices
 from bench.config_choice import announce, live_config, scenario_config
-from bench.liveopts import DEFAULT_LOG_DIR, add_log_arguments
+from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
 
 __all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
 
@@ -46,8 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.commands.tui import show
-    from bench.engine import start_engine
-    from bench.engine_plans import EmulatorPlan, cli_values
+    from bench.engine.client import start_engine
+    from bench.engine.plans import EmulatorPlan, cli_values
     from devices.emulator.scenario import resolve_scenario_path
 
     path = resolve_scenario_path(args.scenario)

@@ -126,7 +126,7 @@ def _write_out(sim: Any, out: str) -> str:
 
     if not is_mcap(out):
         return write_output(sim, out)
-    from bench.mcaplog.writer import write_emulation
+    from bench.mcaplog.emulation import write_emulation
 
     path = Path(out)
     config = scenario_config(sim.scenario)
@@ -169,7 +169,7 @@ def _write_calibration(sc: Any, out: str, given: str) -> None:
 
 
 def _play(args: argparse.Namespace, sim: Any) -> int:
-    from bench.cpu_placement import other_cpus
+    from devices.cpu_placement import other_cpus
     from devices.emulator import CanPlayer, PtyPlayer
 
     # a board in a process of its own is not part of any bench's live path: it keeps off

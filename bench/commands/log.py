@@ -154,10 +154,10 @@ def export_csv(
 ) -> int:
     """Write the replay CSV: recorded results, or fusion recomputed from the raw frames."""
     from bench.config import load_config
-    from bench.mcaplog.reader import read_results, recorded_config
-    from bench.pipeline import Pipeline
-    from bench.results import CsvWriter
-    from devices.mcap_file import McapFrameSource
+    from bench.mcaplog.recorded import read_results, recorded_config
+    from bench.mcaplog.source import McapFrameSource
+    from bench.pipeline.steps import Pipeline
+    from bench.records.results import CsvWriter
 
     writer = CsvWriter(fh)
     if not recompute:

@@ -17,8 +17,9 @@ from rich.progress import (
 
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.replay import CsvSink, replay
-from bench.summary import print_summary
+from bench.replay.run import replay
+from bench.sinks.csv import CsvSink
+from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
@@ -52,11 +53,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from devices.files import open_log
+    from bench.replay.sources import open_replay
 
     console = Console(stderr=True)
     config = replay_config(args.config, args.input)
-    source = open_log(args.input)
+    source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them
         print(f"bench: {config.announcement()}", file=sys.stderr)
         hint = replay_hint(config, args.input)
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
                 "--compare needs an .mcap input (only MCAP logs hold recorded results)"
             )
         from bench.mcaplog.compare import compare_results, print_comparison
-        from bench.mcaplog.reader import read_results
+        from bench.mcaplog.recorded import read_results
 
         report = compare_results(read_results(args.input), outcome.results)
         print_comparison(report, console)

@@ -13,10 +13,10 @@ from typing import Any
 
 from bench.config_choice import announce, live_config
 from bench.errors import BenchError
-from bench.live import LiveRunner, Snapshot
-from bench.liveopts import LiveSetup, add_live_arguments, open_live, open_recording
-from bench.replay import CsvSink
-from bench.summary import print_summary
+from bench.live.runner import LiveRunner, Snapshot
+from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.sinks.csv import CsvSink
+from bench.sinks.summary import print_summary
 
 
 def register(sub: argparse._SubParsersAction) -> None:

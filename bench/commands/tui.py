@@ -10,7 +10,7 @@ from typing import Any
 from bench.config import Config
 from bench.config_choice import announce, live_config, replay_config, replay_hint
 from bench.errors import BenchError
-from bench.liveopts import DEFAULT_LOG_DIR, add_live_arguments
+from bench.live.setup import DEFAULT_LOG_DIR, add_live_arguments
 
 SPEED_CHOICES = {"1": 1.0, "1x": 1.0, "10": 10.0, "10x": 10.0, "max": None}
 
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
 def show(session: Any) -> int:
     """The screen on a built session; the logs written are listed however it ends."""
-    from bench.tui.session import run_tui
+    from bench.tui.run import run_tui
 
     try:
         return run_tui(session)
@@ -69,8 +69,8 @@ def show(session: Any) -> int:
 
 def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     """Source, pipeline and log in the engine process: the screen never holds up the run."""
-    from bench.engine import start_engine
-    from bench.engine_plans import LivePlan, cli_values
+    from bench.engine.client import start_engine
+    from bench.engine.plans import LivePlan, cli_values
 
     plan = LivePlan(config=config, args=cli_values(args), log_dir=log_dir)
     return start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
@@ -78,7 +78,7 @@ def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
 
 def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     """A log replayed in this process (no latency to keep there)."""
-    from bench.tui.session import live_session, replay_setup
+    from bench.live.session import live_session, replay_setup
 
     given = [
         opt
@@ -95,7 +95,7 @@ def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     setup = replay_setup(args.replay, config, speed=SPEED_CHOICES[args.speed], paused=args.paused)
     first = None
     if args.mcap and not args.no_log:
-        from bench.liveopts import start_recording
+        from bench.live.setup import start_recording
 
         first = start_recording(Path(args.mcap), setup, config)
     return live_session(setup, config, first, log_dir)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import numpy as np
 
 from bench.config import Config
-from bench.events import EVENT_DTYPE
 from bench.fusion.isolation import ExclusionLatch, Reason, ResidualIsolator, StuckDetector
 from bench.fusion.least_squares import (
     FULL,
@@ -31,6 +30,7 @@ from bench.fusion.least_squares import (
     solve_one,
 )
 from bench.fusion.speed_ref import ReferenceAcceleration
+from bench.records.events import EVENT_DTYPE
 from protocol.layout import TICK_S
 
 ESTIMATE_DTYPE = np.dtype(
@@ -91,7 +91,7 @@ def _reasons(single: np.ndarray, stuck: np.ndarray, status: np.ndarray) -> np.nd
 
 
 class Estimator:
-    """Stateful; :meth:`push` every batch of samples in order (see bench.pipeline)."""
+    """Stateful; :meth:`push` every batch of samples in order (see bench.pipeline.steps)."""
 
     def __init__(self, config: Config) -> None:
         self.config = config

@@ -23,8 +23,8 @@ from enum import IntEnum
 
 import numpy as np
 
-from bench.events import EVENT_DTYPE, EventKind, make_events
 from bench.fusion.least_squares import PAIR_MASKS, Geometry, Row, combine_arrays
+from bench.records.events import EVENT_DTYPE, EventKind, make_events
 
 NEVER = np.iinfo(np.int64).min // 4
 """Tick value meaning "no such event yet" (far in the past, overflow-safe to subtract)."""

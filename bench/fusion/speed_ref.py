@@ -38,11 +38,11 @@ import math
 
 import numpy as np
 
-from bench.assembly import MAX_BRIDGE_TICKS
 from bench.config import EstimatorSettings
 from bench.fusion.isolation import NEVER
 from bench.fusion.kalman import SpeedKalman
-from bench.records import SPEED_DTYPE
+from bench.records.board import SPEED_DTYPE
+from bench.records.samples import MAX_BRIDGE_TICKS
 from protocol.layout import TICK_S, TS_WRAP
 
 _INF = math.inf
@@ -185,7 +185,7 @@ class ReferenceAcceleration:
         prev_t = np.concatenate(([self._prev_t], t[:-1]))
         prev_b = np.concatenate(([self._prev_anchor_b], anchor_b[:-1]))
         d = (ts - prev_ts) % TS_WRAP
-        # receive time bridges wraps only over plausible gaps (as in bench.assembly): a
+        # receive time bridges wraps only over plausible gaps (as in bench.pipeline.assembly): a
         # missing or absurd receive time (NaN, inf, 1e300, -1) falls back to board time
         with np.errstate(invalid="ignore", over="ignore"):
             step = (t - prev_t) / TICK_S

@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 
 from bench.mcaplog import schemas as S
-from bench.mcaplog.reader import McapLog, link_error_from_json, notice_from_json
-from bench.results import RESULT_DTYPE
+from bench.mcaplog.decoders import link_error_from_json, notice_from_json
+from bench.mcaplog.reader import McapLog
+from bench.records.results import RESULT_DTYPE
 
 
 def spans(mask: np.ndarray) -> list[tuple[int, int]]:

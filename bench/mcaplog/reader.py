@@ -1,5 +1,6 @@
-"""Reading the bench's MCAP files: a fast frame reader that survives truncation, and readers
-for the recorded results, events, metadata and attachments.
+"""Reading the bench's MCAP files: :class:`McapLog`, a fast frame reader that survives
+truncation (the recorded results, events, metadata and attachments as rows:
+:mod:`bench.mcaplog.recorded`).
 
 The file is scanned record by record from the start (not from the summary), so an
 unfinished file (kill -9, power loss, disk full) reads exactly like a finished one up to
@@ -14,153 +15,57 @@ gathers the fixed-size records in one fancy index.
 
 from __future__ import annotations
 
-import base64
 import json
 import logging
 import mmap
 import struct
-import tomllib
 import zlib
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bench.assembly import SAMPLE_DTYPE
-from bench.config import ORIGINS, Config, config_from_dict
-from bench.errors import BenchError
-from bench.events import EVENT_DTYPE
 from bench.mcaplog import schemas as S
-from bench.records import SPEED_DTYPE, STATUS_DTYPE
-from bench.results import RESULT_DTYPE
+from bench.mcaplog.decoders import (
+    concat_frames,
+    frames_from_records,
+    link_error_from_json,
+    notice_from_json,
+)
+from bench.mcaplog.structure import (
+    FOOTER_LEN,
+    MAGIC,
+    OP_ATTACHMENT,
+    OP_CHANNEL,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_HEADER,
+    OP_MESSAGE,
+    OP_MESSAGE_INDEX,
+    OP_METADATA,
+    OP_NAMES,
+    OP_SCHEMA,
+    OP_STATISTICS,
+    AttachmentInfo,
+    ChannelInfo,
+    ChunkContent,
+    ChunkInfo,
+    McapReadError,
+    SchemaInfo,
+    gather,
+    read_map,
+    read_statistics,
+    read_str,
+    walk_chunk,
+)
 from devices.base import SourceBatch, SourceNotice
-from protocol.frames import FRAME_DTYPE, empty_frames
-from protocol.layout import Outcome
+from protocol.frames import empty_frames
 from protocol.records import LinkError
 
 log = logging.getLogger("bench.mcaplog")
-
-MAGIC = b"\x89MCAP0\r\n"
-OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
-OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT = 0x06, 0x07, 0x08, 0x09
-OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x0B, 0x0C, 0x0F
-_FOOTER_LEN = 1 + 8 + 20
-_OP_NAMES = {
-    OP_HEADER: "Header",
-    OP_SCHEMA: "Schema",
-    OP_CHANNEL: "Channel",
-    OP_MESSAGE: "Message",
-    OP_CHUNK: "Chunk",
-    OP_MESSAGE_INDEX: "MessageIndex",
-    OP_ATTACHMENT: "Attachment",
-    OP_METADATA: "Metadata",
-    OP_DATA_END: "DataEnd",
-}
-
-
-class McapReadError(BenchError):
-    """The file is not an MCAP file at all (wrong magic, empty)."""
-
-
-@dataclass(slots=True)
-class SchemaInfo:
-    id: int
-    name: str
-    encoding: str
-    data: bytes
-
-
-@dataclass(slots=True)
-class ChannelInfo:
-    id: int
-    schema_id: int
-    topic: str
-    message_encoding: str
-    metadata: dict[str, str]
-
-
-@dataclass(slots=True)
-class AttachmentInfo:
-    name: str
-    media_type: str
-    log_time: int
-    create_time: int
-    data_offset: int
-    size: int
-    record_offset: int
-    record_length: int
-
-
-@dataclass(slots=True)
-class ChunkInfo:
-    offset: int  # of the Chunk record
-    length: int  # whole record, opcode included
-    start_time: int
-    end_time: int
-    uncompressed_size: int
-    crc: int
-    compression: str
-    data_offset: int
-    data_len: int
-    index: dict[int, tuple[int, int]] = field(
-        default_factory=dict
-    )  # channel -> (entries offset, bytes)
-    index_complete: bool = False  # a record after the MessageIndex run was seen
-
-    @property
-    def indexed(self) -> bool:
-        return self.index_complete and bool(self.index)
-
-    @property
-    def end(self) -> int:
-        return self.offset + self.length
-
-
-@dataclass(slots=True)
-class ChunkContent:
-    """One decompressed chunk and the offsets of its messages per channel."""
-
-    info: ChunkInfo
-    buf: bytes
-    offsets: dict[int, np.ndarray]  # channel id -> sorted offsets into buf
-
-    def payloads(self, channel_id: int) -> list[memoryview]:
-        offs = self.offsets.get(channel_id)
-        if offs is None or len(offs) == 0:
-            return []
-        mv = memoryview(self.buf)
-        out = []
-        unpack = struct.Struct("<Q").unpack_from
-        for o in offs.tolist():
-            (length,) = unpack(mv, o + 1)
-            out.append(mv[o + S.MESSAGE_HEADER_SIZE : o + 9 + length])
-        return out
-
-    def records(self, channel_id: int) -> np.ndarray:
-        """Message headers (opcode..publish_time) of a channel's messages, vectorised."""
-        offs = self.offsets.get(channel_id)
-        dt = np.dtype(S.MESSAGE_HEADER)
-        if offs is None or len(offs) == 0:
-            return np.zeros(0, dtype=dt)
-        return _gather(self.buf, offs, dt)
-
-
-def _gather(buf: bytes, offsets: np.ndarray, dtype: np.dtype) -> np.ndarray:
-    """Fixed-size records starting at ``offsets`` of ``buf``: an overlapping byte-strided
-    view of the buffer indexed once (copies exactly the records, nothing else), or, when
-    the records fill the buffer back to back, a read-only view of it (no copy)."""
-    size = dtype.itemsize
-    if len(buf) < size:
-        return np.zeros(0, dtype=dtype)
-    if len(buf) == len(offsets) * size and offsets[0] == 0 and np.all(np.diff(offsets) == size):
-        return np.frombuffer(buf, dtype=dtype)  # records back to back (a frames-only chunk)
-    # gather as opaque V<size> items (one memcpy each; ~25x faster than a structured dtype)
-    raw = np.dtype(f"V{size}")
-    view = np.ndarray(shape=(len(buf) - size + 1,), dtype=raw, buffer=buf, offset=0, strides=(1,))
-    return view[offsets].view(dtype)
 
 
 class McapLog:
@@ -275,7 +180,7 @@ class McapLog:
             op, length = u_bq(mm, pos)
             end = pos + 9 + length
             if end > size:
-                name = _OP_NAMES.get(op, f"opcode 0x{op:02X}")
+                name = OP_NAMES.get(op, f"opcode 0x{op:02X}")
                 reason = f"file ends inside a {name} record of {length} bytes"
                 cut_op = op
                 break
@@ -288,8 +193,8 @@ class McapLog:
             body = pos + 9
             try:
                 if op == OP_HEADER:
-                    self.profile, p = _str(mm, body)
-                    self.library, _ = _str(mm, p)
+                    self.profile, p = read_str(mm, body)
+                    self.library, _ = read_str(mm, p)
                 elif op == OP_SCHEMA:
                     self._schema(body)
                 elif op == OP_CHANNEL:
@@ -302,8 +207,8 @@ class McapLog:
                         (cid, rec_len) = struct.unpack_from("<HI", mm, body)
                         self.chunks[-1].index[cid] = (body + 6, min(rec_len, length - 6))
                 elif op == OP_METADATA:
-                    name, p = _str(mm, body)
-                    self.metadata.append((name, _map(mm, p)))
+                    name, p = read_str(mm, body)
+                    self.metadata.append((name, read_map(mm, p)))
                 elif op == OP_ATTACHMENT:
                     self.attachments.append(self._attachment(pos, body, end))
                 elif op == OP_MESSAGE:
@@ -356,20 +261,20 @@ class McapLog:
 
     def _schema(self, p: int) -> None:
         (sid,) = struct.unpack_from("<H", self._mm, p)
-        name, p = _str(self._mm, p + 2)
-        enc, p = _str(self._mm, p)
+        name, p = read_str(self._mm, p + 2)
+        enc, p = read_str(self._mm, p)
         (n,) = struct.unpack_from("<I", self._mm, p)
         self.schemas[sid] = SchemaInfo(sid, name, enc, bytes(self._mm[p + 4 : p + 4 + n]))
 
     def _channel(self, p: int) -> None:
         cid, sid = struct.unpack_from("<HH", self._mm, p)
-        topic, p = _str(self._mm, p + 4)
-        enc, p = _str(self._mm, p)
-        self.channels[cid] = ChannelInfo(cid, sid, topic, enc, _map(self._mm, p))
+        topic, p = read_str(self._mm, p + 4)
+        enc, p = read_str(self._mm, p)
+        self.channels[cid] = ChannelInfo(cid, sid, topic, enc, read_map(self._mm, p))
 
     def _chunk(self, pos: int, p: int, end: int) -> ChunkInfo:
         start, stop, usize, crc = struct.unpack_from("<QQQI", self._mm, p)
-        comp, p = _str(self._mm, p + 28)
+        comp, p = read_str(self._mm, p + 28)
         (dlen,) = struct.unpack_from("<Q", self._mm, p)
         if p + 8 + dlen > end:
             raise ValueError("chunk data overruns its record")
@@ -377,8 +282,8 @@ class McapLog:
 
     def _attachment(self, pos: int, p: int, end: int) -> AttachmentInfo:
         log_time, create_time = struct.unpack_from("<QQ", self._mm, p)
-        name, p = _str(self._mm, p + 16)
-        media, p = _str(self._mm, p)
+        name, p = read_str(self._mm, p + 16)
+        media, p = read_str(self._mm, p)
         (n,) = struct.unpack_from("<Q", self._mm, p)
         if p + 8 + n + 4 > end:
             raise ValueError("attachment data overruns its record")
@@ -386,7 +291,7 @@ class McapLog:
 
     def _read_footer(self) -> None:
         mm, size = self._mm, self.size
-        foot = size - 8 - _FOOTER_LEN
+        foot = size - 8 - FOOTER_LEN
         if foot < self.scan_end or bytes(mm[size - 8 :]) != MAGIC:
             self.warnings.append(f"{self.path}: no footer after the data section (summary lost)")
             return
@@ -405,7 +310,7 @@ class McapLog:
             while pos + 9 <= end:
                 rop, rlen = struct.unpack_from("<BQ", mm, pos)
                 if rop == OP_STATISTICS:
-                    self.statistics = _statistics(mm, pos + 9)
+                    self.statistics = read_statistics(mm, pos + 9)
                 pos += 9 + rlen
         self.summary_ok = True
 
@@ -463,7 +368,7 @@ class McapLog:
                 out[cid] = offs
             if ok:
                 return out
-        return _walk(buf, channels)
+        return walk_chunk(buf, channels)
 
     def iter_chunks(self, channels: set[int] | None = None) -> Iterator[ChunkContent]:
         """The chunks holding messages of ``channels`` (None: every chunk), decompressed.
@@ -493,7 +398,7 @@ class McapLog:
         if offs.max() + S.FRAME_RECORD_DTYPE.itemsize > len(content.buf):
             self._bad(content.info, "frame message overruns the chunk")
             return none
-        recs = _gather(content.buf, offs, S.FRAME_RECORD_DTYPE)  # read-only if contiguous
+        recs = gather(content.buf, offs, S.FRAME_RECORD_DTYPE)  # read-only if contiguous
         p = recs["payload"]
         good = (recs["opcode"] == S.MESSAGE_OPCODE) & (recs["length"] == S.FRAME_RECORD_LENGTH)
         good &= recs["channel_id"] == fid
@@ -586,7 +491,7 @@ class McapLog:
             cuts = [0, *starts.tolist(), len(frames)]
             for k in range(len(cuts) - 1):
                 if k > 0 and (parts or errors or notices):
-                    yield SourceBatch(_cat(parts), errors, notices), reached
+                    yield SourceBatch(concat_frames(parts), errors, notices), reached
                     parts, errors, notices, pending = [], [], [], 0
                 piece = frames[cuts[k] : cuts[k + 1]]
                 if len(piece):
@@ -598,11 +503,11 @@ class McapLog:
                     else:
                         notices.append(item)
                 if not marked and pending >= max_frames:
-                    yield SourceBatch(_cat(parts), errors, notices), content.info.end
+                    yield SourceBatch(concat_frames(parts), errors, notices), content.info.end
                     parts, errors, notices, pending = [], [], [], 0
             reached = content.info.end
         if parts or errors or notices:
-            yield SourceBatch(_cat(parts), errors, notices), reached
+            yield SourceBatch(concat_frames(parts), errors, notices), reached
 
     def read_frames(self) -> tuple[np.ndarray, list[LinkError], list[SourceNotice]]:
         frames, errors, notices = [], [], []
@@ -639,7 +544,7 @@ class McapLog:
             else:
                 buf = self.decompress(info)
                 if buf is not None:
-                    for cid, offs in _walk(buf, None).items():
+                    for cid, offs in walk_chunk(buf, None).items():
                         counts[cid] += len(offs)
         return {ch.topic: counts.get(cid, 0) for cid, ch in sorted(self.channels.items())}
 
@@ -666,189 +571,3 @@ class McapLog:
                 problems.append(f"attachment {att.name}: CRC mismatch")
         problems += [w for w in self.warnings if "summary" in w and "CRC" in w]
         return problems
-
-
-# -- record helpers ------------------------------------------------------------------------
-def _str(buf: Any, p: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", buf, p)
-    return bytes(buf[p + 4 : p + 4 + n]).decode("utf-8"), p + 4 + n
-
-
-def _map(buf: Any, p: int) -> dict[str, str]:
-    (n,) = struct.unpack_from("<I", buf, p)
-    p += 4
-    end = p + n
-    out = {}
-    while p < end:
-        k, p = _str(buf, p)
-        v, p = _str(buf, p)
-        out[k] = v
-    return out
-
-
-def _statistics(buf: Any, p: int) -> dict[str, Any]:
-    msg, schemas, channels, atts, metas, chunks, t0, t1, n = struct.unpack_from(
-        "<QHIIIIQQI", buf, p
-    )
-    p += 8 + 2 + 4 * 4 + 16 + 4
-    counts = {}
-    for k in range(n // 10):
-        cid, count = struct.unpack_from("<HQ", buf, p + 10 * k)
-        counts[cid] = count
-    return {
-        "message_count": msg,
-        "schema_count": schemas,
-        "channel_count": channels,
-        "attachment_count": atts,
-        "metadata_count": metas,
-        "chunk_count": chunks,
-        "message_start_time": t0,
-        "message_end_time": t1,
-        "channel_message_counts": counts,
-    }
-
-
-def _walk(buf: bytes, channels: set[int] | None) -> dict[int, np.ndarray]:
-    """Per-record walk of a chunk (the fallback when its MessageIndex is missing)."""
-    found: dict[int, list[int]] = {}
-    pos, size = 0, len(buf)
-    head = struct.Struct("<BQ").unpack_from
-    while pos + 9 <= size:
-        op, length = head(buf, pos)
-        end = pos + 9 + length
-        if end > size:
-            break
-        if op == OP_MESSAGE and length >= 22:
-            (cid,) = struct.unpack_from("<H", buf, pos + 9)
-            if channels is None or cid in channels:
-                found.setdefault(cid, []).append(pos)
-        pos = end
-    return {cid: np.asarray(offs, dtype=np.int64) for cid, offs in found.items()}
-
-
-def frames_from_records(recs: np.ndarray) -> np.ndarray:
-    """FRAME_DTYPE rows of raw-frame records."""
-    p = recs["payload"]
-    out = np.empty(len(recs), dtype=FRAME_DTYPE)
-    out["t"] = p["t"]
-    out["id"] = p["id"]
-    out["dlc"] = np.minimum(p["dlc"], 255)
-    out["flags"] = p["flags"] & 0xFF  # above bit 7: bench marks (FLAG_BATCH_START)
-    out["data"] = p["data"]
-    return out
-
-
-def _cat(parts: list[np.ndarray]) -> np.ndarray:
-    if not parts:
-        return empty_frames()
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
-
-
-def _num(v: Any) -> float:
-    return float("nan") if v is None else float(v)
-
-
-def link_error_from_json(m: bytes | memoryview) -> LinkError:
-    d = json.loads(bytes(m))
-    code = int(d.get("outcome", 0))
-    outcome: Outcome | int = Outcome(code) if code in Outcome._value2member_map_ else code
-    return LinkError(
-        _num(d.get("t")), outcome, base64.b64decode(d.get("raw", "")), d.get("detail", "")
-    )  # type: ignore[arg-type]
-
-
-def notice_from_json(m: bytes | memoryview) -> SourceNotice:
-    d = json.loads(bytes(m))
-    return SourceNotice(_num(d.get("t")), str(d.get("kind", "")), str(d.get("detail", "")))
-
-
-def events_from_json(objs: list[dict[str, Any]]) -> np.ndarray:
-    """EVENT_DTYPE rows of recorded foxglove.Log events (marks included)."""
-    out = np.zeros(len(objs), dtype=EVENT_DTYPE)
-    for i, d in enumerate(objs):
-        out[i] = (
-            _num(d.get("t")),
-            d.get("kind", 0),
-            d.get("channel", 0),
-            d.get("n", -1),
-            d.get("value", 0),
-        )
-    return out
-
-
-# -- convenience functions (path or opened log) ---------------------------------------------
-def open_log(path: str | Path) -> McapLog:
-    return McapLog(path)
-
-
-def _with(source: str | Path | McapLog, fn: Any) -> Any:
-    if isinstance(source, McapLog):
-        return fn(source)
-    with McapLog(source) as lg:
-        return fn(lg)
-
-
-def read_frames(
-    source: str | Path | McapLog,
-) -> tuple[np.ndarray, list[LinkError], list[SourceNotice]]:
-    """Every raw frame (FRAME_DTYPE, arrival order), link error and recorded notice."""
-    return _with(source, lambda lg: lg.read_frames())
-
-
-def read_results(source: str | Path | McapLog) -> np.ndarray:
-    """The recorded fusion results (RESULT_DTYPE), as the live run computed them."""
-    return _with(source, lambda lg: lg.table(S.RESULT_TOPIC, S.RESULT_COLUMNS, RESULT_DTYPE))
-
-
-def read_samples(source: str | Path | McapLog) -> np.ndarray:
-    return _with(source, lambda lg: lg.table(S.SAMPLE_TOPIC, S.SAMPLE_COLUMNS, SAMPLE_DTYPE))
-
-
-def read_status(source: str | Path | McapLog) -> np.ndarray:
-    return _with(source, lambda lg: lg.table(S.STATUS_TOPIC, S.STATUS_COLUMNS, STATUS_DTYPE))
-
-
-def read_speed(source: str | Path | McapLog) -> np.ndarray:
-    return _with(source, lambda lg: lg.table(S.SPEED_TOPIC, S.SPEED_COLUMNS, SPEED_DTYPE))
-
-
-def read_events(source: str | Path | McapLog) -> list[dict[str, Any]]:
-    """Recorded events as foxglove.Log objects (with t, kind, channel, n, value, text)."""
-    return _with(source, lambda lg: lg.json_topic(S.EVENT_TOPIC))
-
-
-def read_topic(source: str | Path | McapLog, topic: str) -> list[dict[str, Any]]:
-    return _with(source, lambda lg: lg.json_topic(topic))
-
-
-def read_metadata(source: str | Path | McapLog) -> dict[str, dict[str, str]]:
-    return _with(source, lambda lg: lg.metadata_dict())
-
-
-def read_attachments(source: str | Path | McapLog) -> dict[str, bytes]:
-    return _with(source, lambda lg: {a.name: lg.attachment(a.name) or b"" for a in lg.attachments})
-
-
-def recorded_config(source: str | Path | McapLog) -> Config | None:
-    """The config the run used (``config`` metadata record), or None if none was recorded.
-    Raises ConfigError if the recorded TOML is not a valid config."""
-
-    def get(lg: McapLog) -> Config | None:
-        meta = lg.metadata_dict().get("config")
-        if not meta or "toml" not in meta:
-            return None
-        where = f"{lg.path.name}:config"
-        try:
-            data = tomllib.loads(meta["toml"])
-        except tomllib.TOMLDecodeError as exc:
-            raise BenchError(f"{where}: recorded config is not valid TOML: {exc}") from None
-        origin = meta.get("origin", "file")
-        cfg = config_from_dict(
-            data,
-            source=meta.get("source", where),
-            path=meta.get("path"),
-            origin=origin if origin in ORIGINS else "file",
-        )
-        return replace(cfg, recorded_in=lg.path.name)
-
-    return _with(source, get)

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.assembly import SAMPLE_DTYPE
-from bench.records import SPEED_DTYPE, STATUS_DTYPE
-from bench.results import RESULT_DTYPE
+from bench.records.board import SPEED_DTYPE, STATUS_DTYPE
+from bench.records.results import RESULT_DTYPE
+from bench.records.samples import SAMPLE_DTYPE
 from protocol.layout import BoardState, Outcome
 
 # -- topics --------------------------------------------------------------------------------

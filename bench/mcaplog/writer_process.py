@@ -5,7 +5,7 @@ bench process it runs in bursts of a few milliseconds, and while it holds the GI
 acquisition and processing threads wait. Here the bench process only queues each step (as
 before) and a sender thread ships each group of queued steps, merged into one set of arrays
 (~0.5 ms per 50 ms group), to a writer process at idle CPU priority that runs the very same
-:class:`~bench.mcaplog.writer.McapSink` code without its thread. (Measured on 2 cores: the
+:class:`~bench.mcaplog.sink.McapSink` code without its thread. (Measured on 2 cores: the
 encoder's CPU still shows in the live latency p99 wherever it runs -- see
 docs/BENCHMARKS.md -- but no longer as GIL stalls of the bench process.)
 
@@ -37,19 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.arrays import concat_records
 from bench.config import Config
-from bench.cpu_placement import other_cpus, pin_thread, yield_cpu
-from bench.mcaplog.writer import (
-    _MAX_GROUP,
-    _STOP,
-    DEFAULT_FLUSH_INTERVAL_S,
-    DEFAULT_GROUP_INTERVAL_S,
-    McapSink,
-    QueuedSink,
-)
-from bench.pipeline import StepOutput
+from bench.mcaplog.sink import DEFAULT_FLUSH_INTERVAL_S, DEFAULT_GROUP_INTERVAL_S, McapSink
+from bench.pipeline.steps import StepOutput
+from bench.records.arrays import concat_records
+from bench.sinks.queued import MAX_GROUP, STOP, QueuedSink
 from devices.base import SourceBatch
+from devices.cpu_placement import other_cpus, pin_thread, yield_cpu
 
 log = logging.getLogger("bench.mcaplog")
 
@@ -211,17 +205,17 @@ def _writer_main(conn: Connection) -> None:
             sink.dropped = msg[3]
         if pending and (done or time.monotonic() >= since + group_s):
             try:
-                sink._handle_items(pending, since)
+                sink.encode_items(pending, since)
             except Exception as exc:
-                sink._fail(exc)
+                sink.fail(exc)
             pending = []
             with contextlib.suppress(OSError):
                 conn.send(("status", _writer_status(sink)))
         if sink._chunk_opened is not None and (
             time.monotonic() - sink._chunk_opened >= sink.flush_interval_s
         ):
-            sink._flush()
-    sink._finish()
+            sink.flush_chunks()
+    sink.finish()
     with contextlib.suppress(OSError):
         conn.send(("closed", _writer_status(sink)))
 
@@ -326,14 +320,14 @@ class McapProcessSink(QueuedSink):
             items = [self._queue.get(timeout=0.25)]
         except queue.Empty:
             return []
-        if items[0] is not _STOP and self._queue.qsize() < _MAX_GROUP:
+        if items[0] is not STOP and self._queue.qsize() < MAX_GROUP:
             time.sleep(self.group_interval_s)
         return self._drain(items)
 
     def _run(self) -> None:
         while True:
             items = self._collect()
-            stop = bool(items) and items[-1] is _STOP
+            stop = bool(items) and items[-1] is STOP
             if stop:
                 items.pop()
             if items:

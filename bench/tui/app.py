@@ -1,7 +1,7 @@
 """The bench TUI: a thin App that lays out the panels and maps keys to session actions.
 
 The App never blocks on acquisition: a timer (4 Hz) starts a worker thread that copies a
-:class:`~bench.live.Snapshot` from the runner and draws the plot, then posts both back. At
+:class:`~bench.live.runner.Snapshot` from the runner and draws the plot, then posts both back. At
 most one snapshot is in flight, so a slow terminal only lowers the display rate and never
 backs up the receive path (the runner's bounded queue and drop counters are shown).
 """
@@ -28,7 +28,9 @@ from textual.screen import Screen
 from textual.widgets import Footer, Static
 
 from bench.errors import BenchError
-from bench.live import HISTORY, Snapshot
+from bench.live.runner import HISTORY, Snapshot
+from bench.live.session import Session
+from bench.replay.player import ReplayStatus, speed_label
 from bench.tui.messages import SessionStopped, SnapshotReady
 from bench.tui.panels import duration_text
 from bench.tui.panels.board import BoardPanel
@@ -44,8 +46,6 @@ from bench.tui.panels.plot import (
     render_plot,
 )
 from bench.tui.panels.recording import RecordingPanel
-from bench.tui.replay_source import ReplayStatus, speed_label
-from bench.tui.session import Session
 
 TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 """What + and - step through (per mille): fine where the vote is touchy, coarse above."""

@@ -18,14 +18,15 @@ import termios
 import threading
 import time
 import tty
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 
-from bench.cpu_placement import live_cpus, pin_thread
-from bench.errors import BenchError
+from devices.cpu_placement import live_cpus, pin_thread
 from devices.emulator.scenario import Scenario, load_scenario
 from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
+from devices.errors import BenchError
 
 
 class _PacedPlayer(threading.Thread):
@@ -276,7 +277,7 @@ def start_virtual_board(
     """
     sim = _as_simulation(scenario)
     # python-can's virtual bus is in-process: this board shares the GIL with the bench that
-    # listens, so it runs on the live path's CPU (bench.cpu_placement)
+    # listens, so it runs on the live path's CPU (devices.cpu_placement)
     bus = _open_virtual(channel_name)
     player = CanPlayer(sim, bus, speed=speed, own_bus=True, cpus=live_cpus())
     if start:
@@ -287,11 +288,17 @@ def start_virtual_board(
 # ----------------------------------------------------------------------------- file output
 
 
-def write_output(sim: Simulation, path: str | Path) -> str:
+McapWriter = Callable[[Path, Simulation, "str | Path | None"], Mapping[str, int]]
+
+
+def write_output(
+    sim: Simulation, path: str | Path, *, mcap_writer: McapWriter | None = None
+) -> str:
     """Write the run to a file as fast as possible; the kind follows the suffix.
 
     .log: candump text of the CAN frames; .bin: raw UART byte stream with UART faults;
-    .mcap: via bench.mcaplog.writer.write_emulation (when installed). Returns a summary line.
+    .mcap: through ``mcap_writer`` (MCAP is the bench's format, so the bench passes its
+    writer: devices/ never imports bench/). Returns a summary line.
     """
     p = Path(path)
     suffix = p.suffix.lower()
@@ -311,14 +318,12 @@ def write_output(sim: Simulation, path: str | Path) -> str:
                 f"{stream.packets_broken} broken by UART faults) to {p}"
             )
         if suffix == ".mcap":
-            try:
-                from bench.mcaplog.writer import write_emulation
-            except ImportError:
+            if mcap_writer is None:
                 raise BenchError(
-                    "mcap output needs bench.mcaplog.writer.write_emulation, which is not "
-                    "installed; write .log or .bin instead"
-                ) from None
-            counts = write_emulation(p, sim, sim.scenario.path or None)
+                    "mcap output needs the bench's MCAP writer (bench emulate passes it); "
+                    "write .log or .bin instead"
+                )
+            counts = mcap_writer(p, sim, sim.scenario.path or None)
             return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {p}"
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from bench.errors import ConfigError
-from bench.textfile import path_or_packaged, read_text_file
-from bench.tomlcheck import Table, is_integer
+from devices.errors import ConfigError
+from devices.textfile import path_or_packaged, read_text_file
+from devices.tomlcheck import Table, is_integer
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,

@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bench.errors import BenchError
 from devices.emulator import faults as fx
 from devices.emulator.board import FrameSet, adc_frames, merge, speed_frames, status_frames
 from devices.emulator.scenario import Fault, Scenario
@@ -23,6 +22,7 @@ from devices.emulator.world import (
     specific_force,
     train_motion,
 )
+from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import (
     FRAME_DLC,

@@ -168,10 +168,12 @@ class Bench:
 
 PRELOAD = (
     "bench.cli",
-    "bench.live",
+    "bench.live.runner",
+    "bench.live.setup",
     "bench.mcaplog.info",
     "bench.mcaplog.reader",
-    "bench.mcaplog.writer",
+    "bench.mcaplog.sink",
+    "bench.replay.run",
     "devices.emulator",
     "devices.files",
     "devices.socketcan_rx",

@@ -10,7 +10,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widgets import Static
 
-from bench.stats import Stats
+from bench.pipeline.stats import Stats
 from bench.tui.panels import MISSING, num
 from protocol.layout import STATUS_FAULT_MASK, status_names
 

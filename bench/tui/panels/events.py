@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from rich.text import Text
 from textual.widgets import DataTable
 
-from bench.events import EventKind, severity
+from bench.records.events import EventKind, severity
 
 STYLE = {"info": "cyan", "warning": "yellow", "error": "bold red"}
 MAX_ROWS = 500

@@ -1,0 +1,1 @@
+"""Acceptance check kinds: one module per family, a registry of them by name (registry.py)."""

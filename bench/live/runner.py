@@ -1,0 +1,304 @@
+"""The live run: acquisition thread -> bounded queue -> processing thread -> sinks and snapshot.
+
+The receive path never waits on the UI or the disk: the acquisition thread only reads the
+source and enqueues (counting what a full queue drops); the processing thread runs the
+pipeline and hands each step to the sinks, which queue their own I/O; the UI copies a
+:class:`Snapshot` at a few Hz.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.config import Config
+from bench.pipeline.stats import Stats
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.arrays import concat_records
+from bench.records.events import EventKind, describe, make_events
+from bench.records.results import RESULT_DTYPE
+from bench.sinks.base import Sink
+from devices.base import LiveSource, SourceBatch
+from devices.cpu_placement import live_cpus, pin_thread
+
+MAX_COALESCE = 512
+"""Queued source batches merged into one pipeline step at most."""
+HISTORY = 60_000
+"""Results kept for the UI (5 min at 200 Hz, 1 min at 1 kHz)."""
+
+
+def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
+    """One batch holding the parts' frames, link errors and notices, in arrival order."""
+    if len(parts) == 1:
+        return parts[0]
+    return SourceBatch(
+        concat_records([p.frames for p in parts]),
+        [e for p in parts for e in p.link_errors],
+        [n for p in parts for n in p.notices],
+    )
+
+
+class ResultRing:
+    """The last ``size`` results, oldest first: the history a UI draws from (the runner's,
+    and the engine's parent's, fed by the rows each snapshot brings)."""
+
+    def __init__(self, size: int) -> None:
+        self._buf = np.zeros(size, dtype=RESULT_DTYPE)
+        self._pos = 0
+        self._len = 0
+
+    def __len__(self) -> int:
+        return self._len
+
+    def extend(self, rows: np.ndarray) -> None:
+        size = len(self._buf)
+        rows = rows[-size:]
+        k = len(rows)
+        first = min(k, size - self._pos)
+        self._buf[self._pos : self._pos + first] = rows[:first]
+        self._buf[: k - first] = rows[first:]
+        self._pos = (self._pos + k) % size
+        self._len = min(size, self._len + k)
+
+    def last(self, k: int) -> np.ndarray:
+        k = max(0, min(k, self._len))
+        start = (self._pos - k) % len(self._buf)
+        if start + k <= len(self._buf):
+            return self._buf[start : start + k].copy()
+        return np.concatenate([self._buf[start:], self._buf[: self._pos]])
+
+
+class LatencyRing:
+    """The last ``size`` frame-to-result latencies (s), finite ones only, in a numpy ring:
+    a snapshot copies 40 kB instead of turning a deque of floats into an array."""
+
+    def __init__(self, size: int) -> None:
+        self._buf = np.zeros(size, dtype=np.float64)
+        self._n = 0  # values written so far
+
+    def extend(self, lat: np.ndarray) -> None:
+        lat = lat[np.isfinite(lat)]
+        size = len(self._buf)
+        if len(lat) >= size:  # the newest value lands where the ring would have put it
+            self._n += len(lat)
+            self._buf[:] = np.roll(lat[-size:], self._n % size)
+            return
+        i = self._n % size
+        k = min(len(lat), size - i)
+        self._buf[i : i + k] = lat[:k]
+        self._buf[: len(lat) - k] = lat[k:]
+        self._n += len(lat)
+
+    def values(self) -> np.ndarray:
+        """A copy of the values kept (order does not matter for percentiles)."""
+        return self._buf[: min(self._n, len(self._buf))].copy()
+
+
+@dataclass
+class Snapshot:
+    """A consistent copy of the run's state for a UI; cheap enough to take at a few Hz."""
+
+    wall: float
+    source: str
+    running: bool
+    results: np.ndarray  # the last HISTORY results, oldest first
+    stats: Stats
+    events: list[tuple[float, int, str]]  # (receive time, EventKind, text), newest last
+    board: np.void | None
+    speed: np.void | None
+    frames_received: int
+    frames_dropped: int
+    queue_depth: int
+    queue_max: int
+    tolerance_permil: float
+    latency_ms: tuple[float, float]  # p50, p99 of frame-to-result latency over the recent window
+    recording: dict[str, Any] | None
+    error: str | None = None
+    marks: int = 0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+class LiveRunner:
+    def __init__(
+        self,
+        source: LiveSource,
+        config: Config,
+        sinks: list[Sink] | None = None,
+        *,
+        description: str = "",
+        queue_batches: int = 4096,
+        read_timeout: float = 0.05,
+    ) -> None:
+        self.source = source
+        self.config = config
+        self.pipeline = Pipeline(config)
+        self.description = description or getattr(source, "description", "live source")
+        self._sinks: list[Sink] = list(sinks or [])
+        self._queue: queue.Queue[SourceBatch | None] = queue.Queue(maxsize=queue_batches)
+        self._read_timeout = read_timeout
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._ring = ResultRing(HISTORY)
+        self._events: deque[tuple[float, int, str]] = deque(maxlen=500)
+        self._latency = LatencyRing(5000)
+        self.frames_received = 0
+        self.frames_dropped = 0
+        self.marks = 0
+        self.error: str | None = None
+        self.finished = threading.Event()
+        self.recording: Any = None  # the MCAP sink, when recording
+        self.cpus = live_cpus()  # both threads on one CPU: they share a GIL (cpu_placement)
+        self._acq = threading.Thread(target=self._acquire, name="acquisition", daemon=True)
+        self._proc = threading.Thread(target=self._process, name="processing", daemon=True)
+
+    # -- control ---------------------------------------------------------------------------
+    def start(self) -> LiveRunner:
+        self._acq.start()
+        self._proc.start()
+        return self
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop acquisition, drain the queue through the pipeline, flush and close sinks."""
+        self._stop.set()
+        self._acq.join(timeout)
+        self._proc.join(timeout)
+        with contextlib.suppress(Exception):
+            self.source.close()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self.finished.wait(timeout)
+
+    def add_sink(self, sink: Sink) -> None:
+        with self._lock:
+            self._sinks.append(sink)
+
+    def remove_sink(self, sink: Sink) -> None:
+        with self._lock:
+            if sink in self._sinks:
+                self._sinks.remove(sink)
+
+    def set_tolerance(self, permil: float) -> None:
+        self.pipeline.tolerance_permil = max(0.0, float(permil))
+        self.mark(f"tolerance set to {self.pipeline.tolerance_permil:g} permil")
+
+    def mark(self, text: str = "operator mark") -> None:
+        t = time.time()
+        self.marks += 1
+        with self._lock:
+            self._events.append((t, int(EventKind.MARK), f"MARK {text}"))
+            sinks = list(self._sinks)
+        for sink in sinks:
+            sink.mark(t, text)
+
+    # -- threads ---------------------------------------------------------------------------
+    def _acquire(self) -> None:
+        pin_thread(self.cpus)
+        try:
+            while not self._stop.is_set():
+                batch = self.source.read(self._read_timeout)
+                if not batch:
+                    continue
+                self.frames_received += len(batch.frames)
+                try:
+                    self._queue.put_nowait(batch)
+                except queue.Full:
+                    self.frames_dropped += len(batch.frames)
+        except Exception as exc:  # a source must not raise, but the run must survive one that does
+            self.error = f"acquisition stopped: {exc!r}"
+        finally:
+            self._queue.put(None)
+
+    def _process(self) -> None:
+        pin_thread(self.cpus)
+        dropped_seen = 0
+        try:
+            end = False
+            while not end:
+                batch = self._queue.get()
+                if batch is None:
+                    break
+                # whatever else is waiting goes into the same step: the pipeline's output does
+                # not depend on batching, and a backlog then shrinks instead of growing
+                parts = [batch]
+                while len(parts) < MAX_COALESCE:
+                    try:
+                        more = self._queue.get_nowait()
+                    except queue.Empty:
+                        break
+                    if more is None:
+                        end = True
+                        break
+                    parts.append(more)
+                step = self.pipeline.process(merge_batches(parts))
+                if self.frames_dropped != dropped_seen:
+                    lost = self.frames_dropped - dropped_seen
+                    dropped_seen = self.frames_dropped
+                    step.events = np.concatenate(
+                        [step.events, make_events(EventKind.DROPPED, time.time(), 0, -1, lost)]
+                    )
+                self._deliver(step)
+            self._deliver(self.pipeline.finish())
+        except Exception as exc:
+            self.error = f"processing stopped: {exc!r}"
+            raise
+        finally:
+            with self._lock:
+                sinks = list(self._sinks)
+            for sink in sinks:
+                try:
+                    sink.close()
+                except Exception as exc:  # a failing sink must not hide the others
+                    self.error = f"closing {type(sink).__name__} failed: {exc!r}"
+            self.finished.set()
+
+    def _deliver(self, step: StepOutput) -> None:
+        now = time.time()
+        with self._lock:
+            sinks = list(self._sinks)
+        for sink in sinks:
+            sink.write(step)
+        res = step.results
+        with self._lock:
+            if len(res):
+                self._ring.extend(res)
+                self._latency.extend(now - res["t"])
+            for ev in step.events[-200:]:
+                self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
+
+    # -- snapshot --------------------------------------------------------------------------
+    def snapshot(self, last: int = HISTORY) -> Snapshot:
+        with self._lock:  # held for two memcpys: the processing thread waits on it
+            results = self._ring.last(last)
+            stats = self.pipeline.stats.copy()
+            events = list(self._events)
+            lat = self._latency.values()
+        rec = None
+        if self.recording is not None:
+            rec = getattr(self.recording, "status", lambda: None)()
+        p50, p99 = np.percentile(lat * 1000.0, (50, 99)).tolist() if len(lat) else (np.nan, np.nan)
+        return Snapshot(
+            wall=time.time(),
+            source=self.description,
+            running=not self.finished.is_set(),
+            results=results,
+            stats=stats,
+            events=events,
+            board=self.pipeline.last_status,
+            speed=self.pipeline.last_speed,
+            frames_received=self.frames_received,
+            frames_dropped=self.frames_dropped,
+            queue_depth=self._queue.qsize(),
+            queue_max=self._queue.maxsize,
+            tolerance_permil=self.pipeline.tolerance_permil,
+            latency_ms=(p50, p99),
+            recording=rec,
+            error=self.error,
+            marks=self.marks,
+        )

@@ -1,0 +1,308 @@
+"""What the TUI drives: a running LiveRunner, its source, the MCAP recorder, replay controls.
+
+The App only ever calls these methods and :meth:`Session.snapshot`; it never touches the
+runner's threads. Building a Session (which source, which log file) is the commands' job,
+so the App can be tested with a fixed snapshot and no runner at all. A live ``bench tui`` or
+``bench demo`` builds its Session in the engine process and the App drives it through
+:class:`bench.engine.client.EngineSession`, which has this same API.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bench.config import Config
+from bench.live.runner import HISTORY, LiveRunner, Snapshot
+from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
+from bench.pipeline.steps import StepOutput
+from bench.replay.player import ReplaySource, ReplayTap
+from bench.sinks.base import Sink
+
+
+class Recorder:
+    """The runner's one recording sink: forwards to the current MCAP sink, if any.
+
+    Starting and stopping a recording swaps the sink behind a lock, so the processing thread
+    never writes to a sink that is being closed, and the runner's own sink list never changes
+    while it runs. When the runner stops it closes the Recorder, which closes the MCAP sink:
+    that is how quitting finalises the file.
+    """
+
+    def __init__(self, open_sink: Callable[[], Any] | None = None, sink: Any = None) -> None:
+        self._open_sink = open_sink
+        self._lock = threading.Lock()
+        self._sink: Any = sink
+        self._closed = False
+        self.last_status: dict[str, Any] | None = None  # of the last file, once stopped
+        self.files: list[Path] = []
+        self._started = time.time()  # wall time the current file was opened
+        self._pending: dict[int, Any] = {}  # detached, not yet being closed
+        self._closing: dict[int, threading.Event] = {}  # being closed; set when done
+        if sink is not None:
+            self.files.append(Path(sink.path))
+
+    @property
+    def active(self) -> bool:
+        return self._sink is not None
+
+    @property
+    def can_start(self) -> bool:
+        return self._open_sink is not None and not self._closed
+
+    @property
+    def path(self) -> Path | None:
+        s = self._sink
+        return Path(s.path) if s is not None else None
+
+    def start(self) -> Path:
+        """Open a new MCAP file and record into it (BenchError if it cannot be created).
+
+        Opened under the lock (a few ms of the processing thread, which the runner's queue
+        absorbs) so that a shutdown racing with it cannot leave an unclosed file."""
+        if self._open_sink is None:
+            raise RuntimeError("this session cannot record")
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the run has stopped")
+            if self._sink is None:
+                self._sink = self._open_sink()
+                self._started = time.time()
+                self.files.append(Path(self._sink.path))
+            return Path(self._sink.path)
+
+    def detach(self) -> Any:
+        """Stop recording; returns the sink, which the caller closes (off the UI thread)."""
+        with self._lock:
+            sink, self._sink = self._sink, None
+            if sink is not None:
+                self._pending[id(sink)] = sink
+        return sink
+
+    def finish(self, sink: Any) -> None:
+        """Close a detached sink (once, whoever gets there first: the UI's worker or the
+        runner's shutdown) and keep its final status for the UI."""
+        if sink is None:
+            return
+        with self._lock:
+            if self._pending.pop(id(sink), None) is None:
+                return
+            done = self._closing[id(sink)] = threading.Event()
+        duration = time.time() - self._started
+        try:
+            sink.close()
+            with contextlib.suppress(Exception):
+                self.last_status = sink_status(sink)
+                self.last_status.setdefault("duration_s", duration)
+        finally:
+            done.set()
+            with self._lock:
+                self._closing.pop(id(sink), None)
+
+    def status(self) -> dict[str, Any] | None:
+        s = self._sink
+        if s is None:
+            return None
+        try:
+            status = sink_status(s)
+            status.setdefault("duration_s", time.time() - self._started)
+            return status
+        except Exception as exc:  # the UI must survive a sink that cannot report
+            return {"path": str(getattr(s, "path", "?")), "error": repr(exc)}
+
+    # -- Sink -----------------------------------------------------------------------------
+    def write(self, step: StepOutput) -> None:
+        with self._lock:
+            if self._sink is not None:
+                self._sink.write(step)
+
+    def mark(self, t: float, text: str) -> None:
+        with self._lock:
+            if self._sink is not None:
+                self._sink.mark(t, text)
+
+    def close(self) -> None:
+        """The runner is done: close the current file and any still being closed, and wait
+        for them, so that quitting never leaves an unfinished MCAP file behind."""
+        with self._lock:
+            current, self._sink = self._sink, None
+            self._closed = True
+            if current is not None:
+                self._pending[id(current)] = current
+            todo = list(self._pending.values())
+            closing = list(self._closing.values())
+        for sink in todo:
+            self.finish(sink)
+        for done in closing:
+            done.wait(60.0)
+
+
+def sink_status(sink: Any) -> dict[str, Any]:
+    """A recording's figures: its ``status()`` dict, else its McapSink counters."""
+    fn = getattr(sink, "status", None)
+    if callable(fn):
+        return dict(fn())
+    out: dict[str, Any] = {"path": str(getattr(sink, "path", "?"))}
+    for key, attr in (
+        ("frames", "frames_logged"),
+        ("bytes", "bytes_written"),
+        ("dropped", "dropped"),
+        ("error", "error"),
+    ):
+        if hasattr(sink, attr):
+            out[key] = getattr(sink, attr)
+    return out
+
+
+@dataclass
+class Session:
+    """A live or replay run as the TUI sees it."""
+
+    runner: LiveRunner | None
+    recorder: Recorder = field(default_factory=Recorder)
+    setup: LiveSetup | None = None
+    replay: ReplaySource | None = None
+    fixed: Snapshot | None = None  # tests: always show this snapshot
+    on_stop: list[Callable[[], None]] = field(default_factory=list)
+    _started: bool = False
+    _stopped: bool = False
+    _stop_lock: threading.Lock = field(default_factory=threading.Lock)
+
+    @classmethod
+    def create(
+        cls,
+        setup: LiveSetup,
+        runner_factory: Callable[[list[Sink]], LiveRunner],
+        open_sink: Callable[[], Any] | None,
+        first_sink: Any = None,
+    ) -> Session:
+        """Wire recorder (and replay tap) into a new runner; the runner is not started."""
+        recorder = Recorder(open_sink, first_sink)
+        replay = setup.source if isinstance(setup.source, ReplaySource) else None
+        sinks: list[Sink] = [recorder]
+        if replay is not None:
+            sinks.insert(0, ReplayTap(replay))
+        runner = runner_factory(sinks)
+        runner.recording = recorder
+        return cls(runner=runner, recorder=recorder, setup=setup, replay=replay)
+
+    @property
+    def mode(self) -> str:
+        return "replay" if self.replay is not None else "live"
+
+    def start(self) -> None:
+        if self.runner is not None and not self._started:
+            self._started = True
+            self.runner.start()
+            if self.setup is not None:
+                self.setup.start_board()
+
+    def snapshot(self, last: int = HISTORY) -> Snapshot:
+        if self.fixed is not None or self.runner is None:
+            assert self.fixed is not None, "a session needs a runner or a fixed snapshot"
+            return self.fixed
+        snap = self.runner.snapshot(last)
+        if self.setup is not None and self.setup.emulator is not None:
+            snap.extra["frames_sent"] = getattr(self.setup.emulator, "frames_sent", None)
+            snap.extra["emulator_done"] = bool(getattr(self.setup.emulator, "done", False))
+        if self.replay is not None:
+            snap.extra["replay"] = self.replay.status()
+        if snap.recording is None and self.recorder.last_status is not None:
+            snap.extra["last_recording"] = self.recorder.last_status
+        return snap
+
+    # -- operator actions -----------------------------------------------------------------
+    def mark(self, text: str = "operator mark") -> None:
+        if self.runner is not None:
+            self.runner.mark(text)
+
+    def tolerance(self) -> float:
+        if self.runner is not None:
+            return float(self.runner.pipeline.tolerance_permil)
+        return float(self.fixed.tolerance_permil) if self.fixed is not None else 0.0
+
+    def set_tolerance(self, permil: float) -> None:
+        if self.runner is not None:
+            self.runner.set_tolerance(permil)
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the board, the runner (drains and closes every sink: the MCAP summary gets
+        written) and the source. Safe to call twice and from any thread."""
+        with self._stop_lock:
+            if self._stopped:
+                return
+            self._stopped = True
+        setup = self.setup
+        if setup is not None and setup.emulator is not None:
+            with contextlib.suppress(Exception):
+                setup.emulator.stop()
+        if self.runner is not None and self._started:
+            self.runner.stop(timeout)
+            self.runner.wait(timeout)
+        else:  # never started: nothing will close the sinks for us
+            with contextlib.suppress(Exception):
+                self.recorder.close()
+        if setup is not None:
+            with contextlib.suppress(Exception):
+                setup.close()
+        for fn in self.on_stop:
+            with contextlib.suppress(Exception):
+                fn()
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+
+def wait_until(pred: Callable[[], bool], timeout: float, interval: float = 0.02) -> bool:
+    """Poll ``pred`` until true or ``timeout`` s pass (for commands and tests, never the UI)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(interval)
+    return pred()
+
+
+# -- building sessions (for the commands) --------------------------------------------------
+def live_session(
+    setup: LiveSetup,
+    config: Config,
+    first_sink: Any = None,
+    log_dir: Path = DEFAULT_LOG_DIR,
+    *,
+    record: bool = True,
+) -> Session:
+    """A session on a live source; ``r`` opens new files in ``log_dir``."""
+
+    def open_sink() -> Any:
+        return start_recording(default_log_path(setup.slug, log_dir), setup, config)
+
+    return Session.create(
+        setup,
+        lambda sinks: LiveRunner(setup.source, config, sinks, description=setup.description),
+        open_sink if record else None,
+        first_sink,
+    )
+
+
+def replay_setup(
+    path: str | Path, config: Config, *, speed: float | None = 1.0, paused: bool = False
+) -> LiveSetup:
+    """A LiveSetup whose source plays the log ``path`` (see :class:`ReplaySource`)."""
+    from bench.replay.sources import open_replay
+
+    p = Path(path)
+    source = ReplaySource(
+        open_replay(p),
+        speed=speed,
+        paused=paused,
+        step_s=1.0 / config.sample_rate_hz,
+        description=f"replay {p.name}",
+    )
+    return LiveSetup(source, f"replay {p.name}", f"replay-{p.stem}"[:40])

@@ -1,0 +1,66 @@
+"""Recorded replay inputs back into what a source yields: raw-frame records to FRAME_DTYPE
+rows, JSON link errors and notices to their records, recorded events to EVENT_DTYPE rows."""
+
+from __future__ import annotations
+
+import base64
+import json
+from typing import Any
+
+import numpy as np
+
+from bench.records.events import EVENT_DTYPE
+from devices.base import SourceNotice
+from protocol.frames import FRAME_DTYPE, empty_frames
+from protocol.layout import Outcome
+from protocol.records import LinkError
+
+
+def frames_from_records(recs: np.ndarray) -> np.ndarray:
+    """FRAME_DTYPE rows of raw-frame records."""
+    p = recs["payload"]
+    out = np.empty(len(recs), dtype=FRAME_DTYPE)
+    out["t"] = p["t"]
+    out["id"] = p["id"]
+    out["dlc"] = np.minimum(p["dlc"], 255)
+    out["flags"] = p["flags"] & 0xFF  # above bit 7: bench marks (FLAG_BATCH_START)
+    out["data"] = p["data"]
+    return out
+
+
+def concat_frames(parts: list[np.ndarray]) -> np.ndarray:
+    if not parts:
+        return empty_frames()
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def json_float(v: Any) -> float:
+    return float("nan") if v is None else float(v)
+
+
+def link_error_from_json(m: bytes | memoryview) -> LinkError:
+    d = json.loads(bytes(m))
+    code = int(d.get("outcome", 0))
+    outcome: Outcome | int = Outcome(code) if code in Outcome._value2member_map_ else code
+    return LinkError(
+        json_float(d.get("t")), outcome, base64.b64decode(d.get("raw", "")), d.get("detail", "")
+    )  # type: ignore[arg-type]
+
+
+def notice_from_json(m: bytes | memoryview) -> SourceNotice:
+    d = json.loads(bytes(m))
+    return SourceNotice(json_float(d.get("t")), str(d.get("kind", "")), str(d.get("detail", "")))
+
+
+def events_from_json(objs: list[dict[str, Any]]) -> np.ndarray:
+    """EVENT_DTYPE rows of recorded foxglove.Log events (marks included)."""
+    out = np.zeros(len(objs), dtype=EVENT_DTYPE)
+    for i, d in enumerate(objs):
+        out[i] = (
+            json_float(d.get("t")),
+            d.get("kind", 0),
+            d.get("channel", 0),
+            d.get("n", -1),
+            d.get("value", 0),
+        )
+    return out

@@ -1,0 +1,197 @@
+"""The MCAP record structure as the reader needs it: opcodes, what the scan finds (schemas,
+channels, attachments, chunks) and the little-endian field readers of the MCAP spec."""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bench.errors import BenchError
+from bench.mcaplog import schemas as S
+
+MAGIC = b"\x89MCAP0\r\n"
+
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE = 0x01, 0x02, 0x03, 0x04, 0x05
+
+
+OP_CHUNK, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_ATTACHMENT = 0x06, 0x07, 0x08, 0x09
+
+
+OP_STATISTICS, OP_METADATA, OP_DATA_END = 0x0B, 0x0C, 0x0F
+
+FOOTER_LEN = 1 + 8 + 20
+
+OP_NAMES = {
+    OP_HEADER: "Header",
+    OP_SCHEMA: "Schema",
+    OP_CHANNEL: "Channel",
+    OP_MESSAGE: "Message",
+    OP_CHUNK: "Chunk",
+    OP_MESSAGE_INDEX: "MessageIndex",
+    OP_ATTACHMENT: "Attachment",
+    OP_METADATA: "Metadata",
+    OP_DATA_END: "DataEnd",
+}
+
+
+class McapReadError(BenchError):
+    """The file is not an MCAP file at all (wrong magic, empty)."""
+
+
+@dataclass(slots=True)
+class SchemaInfo:
+    id: int
+    name: str
+    encoding: str
+    data: bytes
+
+
+@dataclass(slots=True)
+class ChannelInfo:
+    id: int
+    schema_id: int
+    topic: str
+    message_encoding: str
+    metadata: dict[str, str]
+
+
+@dataclass(slots=True)
+class AttachmentInfo:
+    name: str
+    media_type: str
+    log_time: int
+    create_time: int
+    data_offset: int
+    size: int
+    record_offset: int
+    record_length: int
+
+
+@dataclass(slots=True)
+class ChunkInfo:
+    offset: int  # of the Chunk record
+    length: int  # whole record, opcode included
+    start_time: int
+    end_time: int
+    uncompressed_size: int
+    crc: int
+    compression: str
+    data_offset: int
+    data_len: int
+    index: dict[int, tuple[int, int]] = field(
+        default_factory=dict
+    )  # channel -> (entries offset, bytes)
+    index_complete: bool = False  # a record after the MessageIndex run was seen
+
+    @property
+    def indexed(self) -> bool:
+        return self.index_complete and bool(self.index)
+
+    @property
+    def end(self) -> int:
+        return self.offset + self.length
+
+
+@dataclass(slots=True)
+class ChunkContent:
+    """One decompressed chunk and the offsets of its messages per channel."""
+
+    info: ChunkInfo
+    buf: bytes
+    offsets: dict[int, np.ndarray]  # channel id -> sorted offsets into buf
+
+    def payloads(self, channel_id: int) -> list[memoryview]:
+        offs = self.offsets.get(channel_id)
+        if offs is None or len(offs) == 0:
+            return []
+        mv = memoryview(self.buf)
+        out = []
+        unpack = struct.Struct("<Q").unpack_from
+        for o in offs.tolist():
+            (length,) = unpack(mv, o + 1)
+            out.append(mv[o + S.MESSAGE_HEADER_SIZE : o + 9 + length])
+        return out
+
+    def records(self, channel_id: int) -> np.ndarray:
+        """Message headers (opcode..publish_time) of a channel's messages, vectorised."""
+        offs = self.offsets.get(channel_id)
+        dt = np.dtype(S.MESSAGE_HEADER)
+        if offs is None or len(offs) == 0:
+            return np.zeros(0, dtype=dt)
+        return gather(self.buf, offs, dt)
+
+
+def gather(buf: bytes, offsets: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Fixed-size records starting at ``offsets`` of ``buf``: an overlapping byte-strided
+    view of the buffer indexed once (copies exactly the records, nothing else), or, when
+    the records fill the buffer back to back, a read-only view of it (no copy)."""
+    size = dtype.itemsize
+    if len(buf) < size:
+        return np.zeros(0, dtype=dtype)
+    if len(buf) == len(offsets) * size and offsets[0] == 0 and np.all(np.diff(offsets) == size):
+        return np.frombuffer(buf, dtype=dtype)  # records back to back (a frames-only chunk)
+    # gather as opaque V<size> items (one memcpy each; ~25x faster than a structured dtype)
+    raw = np.dtype(f"V{size}")
+    view = np.ndarray(shape=(len(buf) - size + 1,), dtype=raw, buffer=buf, offset=0, strides=(1,))
+    return view[offsets].view(dtype)
+
+
+def read_str(buf: Any, p: int) -> tuple[str, int]:
+    (n,) = struct.unpack_from("<I", buf, p)
+    return bytes(buf[p + 4 : p + 4 + n]).decode("utf-8"), p + 4 + n
+
+
+def read_map(buf: Any, p: int) -> dict[str, str]:
+    (n,) = struct.unpack_from("<I", buf, p)
+    p += 4
+    end = p + n
+    out = {}
+    while p < end:
+        k, p = read_str(buf, p)
+        v, p = read_str(buf, p)
+        out[k] = v
+    return out
+
+
+def read_statistics(buf: Any, p: int) -> dict[str, Any]:
+    msg, schemas, channels, atts, metas, chunks, t0, t1, n = struct.unpack_from(
+        "<QHIIIIQQI", buf, p
+    )
+    p += 8 + 2 + 4 * 4 + 16 + 4
+    counts = {}
+    for k in range(n // 10):
+        cid, count = struct.unpack_from("<HQ", buf, p + 10 * k)
+        counts[cid] = count
+    return {
+        "message_count": msg,
+        "schema_count": schemas,
+        "channel_count": channels,
+        "attachment_count": atts,
+        "metadata_count": metas,
+        "chunk_count": chunks,
+        "message_start_time": t0,
+        "message_end_time": t1,
+        "channel_message_counts": counts,
+    }
+
+
+def walk_chunk(buf: bytes, channels: set[int] | None) -> dict[int, np.ndarray]:
+    """Per-record walk of a chunk (the fallback when its MessageIndex is missing)."""
+    found: dict[int, list[int]] = {}
+    pos, size = 0, len(buf)
+    head = struct.Struct("<BQ").unpack_from
+    while pos + 9 <= size:
+        op, length = head(buf, pos)
+        end = pos + 9 + length
+        if end > size:
+            break
+        if op == OP_MESSAGE and length >= 22:
+            (cid,) = struct.unpack_from("<H", buf, pos + 9)
+            if channels is None or cid in channels:
+                found.setdefault(cid, []).append(pos)
+        pos = end
+    return {cid: np.asarray(offs, dtype=np.int64) for cid, offs in found.items()}

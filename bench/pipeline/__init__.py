@@ -1,0 +1,1 @@
+"""The processing path shared by live and replay: decode -> assembly -> fusion -> results."""

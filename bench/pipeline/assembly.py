@@ -1,0 +1,536 @@
+"""Sample assembly: group the three channel frames of one sampling instant.
+
+One algorithm serves live runs (batches of a few frames) and replay (batches of a
+million): it carries its state across batches, and the outcome does not depend on how the
+stream is cut into batches (tests prove it). It has two twins: a vectorised path for
+batches longer than SCALAR_MAX frames and a plain-Python one for the few frames of a live
+step, where numpy's fixed cost per call would be most of the work. The state between
+batches is small Python values (at most WINDOW open samples), so either path picks it up.
+
+The rules, all driven by frame contents and order (never by wall-clock time), so a live
+run and the replay of its log decide alike:
+
+* Unwrapping. Each valid ADC frame gets an unwrapped sample index ``n`` relative to the
+  previous valid ADC frame from the board-timestamp step (its 6.5536 s wraps resolved by
+  the receive-time step). Once a BOARD_STATUS frame has given the sample rate, board time
+  alone places the frame and a counter that disagrees is reported (COUNTER_JUMP, per
+  frame and channel), so one channel's bad counter cannot pull the others apart. Before
+  that, the counter (mod 256) corrects the predicted step. Counter wrap 255 -> 0 never
+  splits a sample and long gaps do not alias.
+* Membership. A frame joins sample ``n`` unless it is *late* (some earlier frame already
+  reached ``n + WINDOW``: the sample was closed) or a *duplicate* (its channel already
+  joined ``n``). Late and duplicate frames are counted and ignored.
+* Emission. A sample is emitted when closed (overdue: the stream reached ``n + WINDOW``)
+  or, earlier, when all three channels are in and every earlier sample is out. Output is
+  always in ``n`` order. A closed sample proceeds without its missing channels.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.samples import MAX_BRIDGE_TICKS, NO_SAMPLES, SAMPLE_DTYPE
+from protocol.batch import DecodedBatch
+from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
+
+WINDOW = 2
+"""Samples a sample may wait for its missing channels ("about two sample periods")."""
+
+SCALAR_MAX = 64
+"""Batches up to this many frames take the scalar path (about where the two cost the same:
+a live step, or the burst after a stall); longer ones the vectorised path."""
+_FEW_ROWS = 16
+"""Emitted samples up to this many get their gap events in plain Python."""
+
+_NONE = np.iinfo(np.int64).min // 4
+_ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
+_ERRORS = (
+    (int(Outcome.CRC_MISMATCH), EventKind.CRC_ERROR, "can_id"),
+    (int(Outcome.WRONG_DLC), EventKind.WRONG_DLC, "dlc"),
+    (int(Outcome.UNKNOWN_ID), EventKind.UNKNOWN_ID, "can_id"),
+)
+
+_HALF_CW = COUNTER_WRAP // 2
+_HALF_TS = TS_WRAP // 2
+_COUNTER_JUMP, _LATE, _DUPLICATE = (
+    int(EventKind.COUNTER_JUMP),
+    int(EventKind.LATE),
+    int(EventKind.DUPLICATE),
+)
+_STATUS_FLAG, _GAP, _SAMPLES_LOST = (
+    int(EventKind.STATUS_FLAG),
+    int(EventKind.GAP),
+    int(EventKind.SAMPLES_LOST),
+)
+
+Row = list
+"""An open sample: [n, ticks, t, seq, code[3], status[3], present[3]] (SAMPLE_DTYPE order)."""
+
+
+def _rows_to_array(rows: list[Row]) -> np.ndarray:
+    if not rows:
+        return NO_SAMPLES
+    return np.array([tuple(r) for r in rows], dtype=SAMPLE_DTYPE)
+
+
+def _array_to_rows(samples: np.ndarray) -> list[Row]:
+    return [
+        list(r)
+        for r in zip(
+            samples["n"].tolist(),
+            samples["ticks"].tolist(),
+            samples["t"].tolist(),
+            samples["seq"].tolist(),
+            samples["code"].tolist(),
+            samples["status"].tolist(),
+            samples["present"].tolist(),
+            strict=True,
+        )
+    ]
+
+
+def _event_array(kind: int, rows: list[tuple]) -> np.ndarray:
+    """Events of one kind from (t, channel, n, value) tuples, as make_events builds them."""
+    return np.array([(t, kind, ch, n, v) for t, ch, n, v in rows], dtype=EVENT_DTYPE)
+
+
+def _isin(a: np.ndarray, b: list[int]) -> np.ndarray:
+    """np.isin for the few keys of the open samples: only keys up to max(b) can match."""
+    hit = np.zeros(len(a), dtype=bool)
+    if not b:
+        return hit
+    cand = np.flatnonzero(a <= max(b))
+    if len(cand):
+        members = set(b)
+        hit[cand] = [x in members for x in a[cand].tolist()]
+    return hit
+
+
+def _first_of_each(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unique values, index of each one's first occurrence); O(N) when ``a`` is sorted,
+    as it is for an in-order stream, else np.unique's sort."""
+    if len(a) == 0:
+        return a, np.zeros(0, dtype=np.intp)
+    if len(a) < 2 or bool(np.all(a[1:] >= a[:-1])):
+        first = np.flatnonzero(np.concatenate(([True], a[1:] != a[:-1])))
+        return a[first], first
+    return np.unique(a, return_index=True)
+
+
+def _shifted(a: np.ndarray, first: object) -> np.ndarray:
+    """``a`` moved one place right, ``first`` in front: each element's predecessor."""
+    out = np.empty_like(a)
+    out[0] = first
+    out[1:] = a[:-1]
+    return out
+
+
+def _place(
+    chain: tuple[float, int, int, int, int], t: float, ts: int, c: int, period: float, known: bool
+) -> tuple[int, int]:
+    """Sample index and unwrapped board time (ticks) of an ADC frame, from the chain
+    (t, ts, T, c, n) of the ADC frame before it: the scalar twin of Assembler._unwrap."""
+    t0, ts0, big_t0, c0, n0 = chain
+    d = (ts - ts0 + _HALF_TS) % TS_WRAP - _HALF_TS
+    dt_ticks = (t - t0) / TICK_S
+    if math.isfinite(dt_ticks) and abs(dt_ticks) <= MAX_BRIDGE_TICKS:
+        wraps = round((dt_ticks - d) / TS_WRAP)  # round half even, like np.rint
+        if wraps > 0:
+            d += TS_WRAP * wraps
+    est = round(d / period)
+    if known:
+        return n0 + est, big_t0 + d
+    return n0 + est + (c - c0 - est + _HALF_CW) % COUNTER_WRAP - _HALF_CW, big_t0 + d
+
+
+class Assembler:
+    """Stateful sample assembly (see module docstring for the rules)."""
+
+    def __init__(self, sample_rate_hz: float) -> None:
+        self.period_ticks = 1.0 / (sample_rate_hz * TICK_S)
+        self.rate_known = False  # set once a BOARD_STATUS frame has told us the rate
+        self._chain: tuple[float, int, int, int, int] | None = (
+            None  # t, ts, T, c, n of last ADC frame
+        )
+        self.max_n = _NONE
+        self.last_emitted: int | None = None
+        self._last_row_n: int | None = None
+        self._open: list[Row] = []  # samples still open, in n order (at most WINDOW)
+        self._recent: list[int] = []  # n of complete samples emitted early, within the window
+
+    # -- main entry ----------------------------------------------------------------------
+    def push(
+        self, t: np.ndarray, dec: DecodedBatch, seq0: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
+
+        Returns (emitted samples, events)."""
+        if len(dec) <= SCALAR_MAX:
+            return self._push_scalar(t, dec, seq0)
+        return self._push_vector(t, dec, seq0)
+
+    def finish(self) -> tuple[np.ndarray, np.ndarray]:
+        """End of stream: emit every open sample as it is."""
+        rows, self._open = self._open, []
+        if rows:
+            self.last_emitted = rows[-1][0]
+        return _rows_to_array(rows), self._gap_events_rows(rows)
+
+    # -- shared --------------------------------------------------------------------------
+    def _accepted_keys(self) -> list[int]:
+        """Keys n * 4 + channel already taken: open samples and early-emitted ones."""
+        keys = [r[0] * 4 + k + 1 for r in self._open for k in range(3) if r[6][k]]
+        keys += [m * 4 + k for m in self._recent for k in (1, 2, 3)]
+        return keys
+
+    def _error_events(self, t: np.ndarray, dec: DecodedBatch) -> np.ndarray:
+        if not dec.outcome.any():
+            return NO_EVENTS
+        parts = []
+        for outcome, kind, field in _ERRORS:
+            idx = np.flatnonzero(dec.outcome == outcome)
+            if len(idx):
+                value = getattr(dec, field)
+                parts.append(make_events(kind, t[idx], dec.channel[idx], -1, value[idx]))
+        return concat_events(parts)
+
+    def _emit_rows(self, rows: list[Row]) -> list[Row]:
+        """Take the emitted samples off ``rows`` (all open samples, in n order); the rest
+        stay open. Closed ones go, then complete ones that follow the last emitted."""
+        bound = self.max_n - WINDOW
+        i = 0
+        while i < len(rows) and rows[i][0] <= bound:
+            i += 1
+        last = bound if self.last_emitted is None else max(self.last_emitted, bound)
+        k = i
+        while k < len(rows) and rows[k][0] == last + 1 and all(rows[k][6]):
+            last += 1
+            k += 1
+        self.last_emitted = last
+        self._recent = [m for m in self._recent if m > bound]
+        self._recent += [r[0] for r in rows[i:k]]
+        self._open = rows[k:]
+        return rows[:k]
+
+    def _gap_events_rows(self, out: list[Row]) -> np.ndarray:
+        """GAP and SAMPLES_LOST events of emitted samples (Python rows)."""
+        if not out:
+            return NO_EVENTS
+        gaps = [
+            (r[2], k + 1, r[0], 0) for r in out if not all(r[6]) for k in range(3) if not r[6][k]
+        ]
+        lost = []
+        prev = out[0][0] - 1 if self._last_row_n is None else self._last_row_n
+        for r in out:
+            if r[0] - prev > 1:
+                lost.append((r[2], 0, prev + 1, r[0] - prev - 1))
+            prev = r[0]
+        self._last_row_n = prev
+        if not gaps and not lost:
+            return NO_EVENTS
+        return concat_events([_event_array(_GAP, gaps), _event_array(_SAMPLES_LOST, lost)])
+
+    # -- scalar twin (a live batch of a few frames) ----------------------------------------
+    def _push_scalar(
+        self, t: np.ndarray, dec: DecodedBatch, seq0: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One frame at a time in Python ints and floats: the same arithmetic, decisions
+        and event order as :meth:`_push_vector` on the same batch."""
+        outcome = dec.outcome.tolist()
+        errors = self._error_events(t, dec) if any(outcome) else NO_EVENTS
+        kind = dec.kind.tolist()
+        if _ADC not in kind and _STATUS not in kind:
+            return NO_SAMPLES, errors
+        rates = dec.sample_rate.tolist()
+        tt, counter, stamp = t.tolist(), dec.counter.tolist(), dec.timestamp.tolist()
+        channel, code, status = dec.channel.tolist(), dec.code.tolist(), dec.status.tolist()
+        period, known = self.period_ticks, self.rate_known
+        chain, mx = self._chain, self.max_n
+        taken: set[int] | None = None
+        rows = {r[0]: r for r in self._open}
+        jumps: list[tuple] = []
+        late: list[tuple] = []
+        dups: list[tuple] = []
+        flagged: list[tuple] = []
+        any_adc = False
+        for i, k in enumerate(kind):
+            if outcome[i] != _OK:
+                continue
+            if k == _STATUS:
+                if rates[i] > 0:
+                    period, known = 1.0 / (rates[i] * TICK_S), True
+                    self.period_ticks, self.rate_known = period, True
+                continue
+            if k != _ADC:
+                continue
+            any_adc = True
+            ti, ts, c, ch = tt[i], stamp[i], counter[i], channel[i]
+            if chain is None:
+                chain = (ti, ts, ts, c, c)
+            n, big_t = _place(chain, ti, ts, c, period, known)
+            chain = (ti, ts, big_t, c, n)
+            mismatch = (c - n + _HALF_CW) % COUNTER_WRAP - _HALF_CW
+            if mismatch and known:
+                jumps.append((ti, ch, n, mismatch))
+            if mx >= n + WINDOW:
+                late.append((ti, ch, n, 0))
+                continue
+            mx = max(mx, n)
+            if taken is None:
+                taken = set(self._accepted_keys())
+            key = n * 4 + ch
+            if key in taken:
+                dups.append((ti, ch, n, 0))
+                continue
+            taken.add(key)
+            st = status[i]
+            if st & STATUS_FAULT_MASK:
+                flagged.append((ti, ch, n, st))
+            row = rows.get(n)
+            if row is None:
+                row = rows[n] = [n, big_t, 0.0, 0, [0, 0, 0], [0, 0, 0], [False, False, False]]
+            row[2], row[3] = ti, seq0 + i
+            row[4][ch - 1], row[5][ch - 1], row[6][ch - 1] = code[i], st, True
+        if not any_adc:
+            return NO_SAMPLES, errors
+        self._chain, self.max_n = chain, mx
+        out = self._emit_rows(sorted(rows.values()) if len(rows) > 1 else list(rows.values()))
+        gaps = self._gap_events_rows(out)
+        if not (jumps or late or dups or flagged) and not len(gaps):
+            return _rows_to_array(out), errors
+        parts = [
+            _event_array(kind, rows)
+            for kind, rows in ((_COUNTER_JUMP, jumps), (_LATE, late), (_DUPLICATE, dups))
+        ]
+        parts.append(_event_array(_STATUS_FLAG, flagged))
+        return _rows_to_array(out), concat_events([errors, *parts, gaps])
+
+    # -- vectorised path (replay, bursts) --------------------------------------------------
+    def _periods(
+        self, dec: DecodedBatch, adc_idx: np.ndarray
+    ) -> tuple[float | np.ndarray, bool | np.ndarray]:
+        """Period (ticks) in force at each ADC frame, and whether a status frame set it;
+        plain scalars when the batch's status frames change neither (the usual case)."""
+        st = np.flatnonzero((dec.kind == _STATUS) & (dec.outcome == _OK) & (dec.sample_rate > 0))
+        if len(st) == 0:
+            return self.period_ticks, self.rate_known
+        rates = dec.sample_rate[st].astype(np.float64)
+        periods = 1.0 / (rates * TICK_S)
+        before = self.period_ticks, self.rate_known
+        self.period_ticks = float(periods[-1])
+        self.rate_known = True
+        if before[1] and bool(np.all(periods == before[0])):
+            return before[0], True
+        period = np.full(len(adc_idx), before[0])
+        known = np.full(len(adc_idx), before[1])
+        j = np.searchsorted(st, adc_idx) - 1
+        has = j >= 0
+        period[has] = periods[j[has]]
+        known[has] = True
+        return period, known
+
+    def _push_vector(
+        self, t: np.ndarray, dec: DecodedBatch, seq0: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        events = [self._error_events(t, dec)]
+        adc = np.flatnonzero((dec.kind == _ADC) & (dec.outcome == _OK))
+        period, known = self._periods(dec, adc)
+        if len(adc) == 0:
+            return NO_SAMPLES, concat_events(events)
+
+        c = dec.counter[adc]
+        ts = dec.timestamp[adc]
+        tt = np.asarray(t[adc], dtype=np.float64)
+        ch = dec.channel[adc].astype(np.int64)
+        if self._chain is None:
+            self._chain = (float(tt[0]), int(ts[0]), int(ts[0]), int(c[0]), int(c[0]))
+        t0, ts0, big_t0, c0, n0 = self._chain
+        steps, d = self._unwrap(tt, ts, c, t0, ts0, c0, period, known)
+        n = np.cumsum(steps) + n0
+        big_t = np.cumsum(d) + big_t0
+        self._chain = (float(tt[-1]), int(ts[-1]), int(big_t[-1]), int(c[-1]), int(n[-1]))
+
+        # counter vs. the placed index, mod 256 (int8 wrap = centred remainder)
+        mismatch = (c - n.astype(np.uint8)).view(np.int8)
+        jump = (mismatch != 0) & known
+        if jump.any():
+            events.append(
+                make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], mismatch[jump])
+            )
+
+        acc, late = self._membership(n, ch)
+        dup = ~late & ~acc
+        any_late, any_dup = bool(late.any()), bool(dup.any())
+        if any_late:
+            events.append(make_events(EventKind.LATE, tt[late], ch[late], n[late]))
+        if any_dup:
+            events.append(make_events(EventKind.DUPLICATE, tt[dup], ch[dup], n[dup]))
+        status = dec.status[adc]
+        flagged = acc & ((status & STATUS_FAULT_MASK) != 0)
+        if flagged.any():
+            events.append(
+                make_events(
+                    EventKind.STATUS_FLAG, tt[flagged], ch[flagged], n[flagged], status[flagged]
+                )
+            )
+        if any_late or any_dup:  # else every frame was accepted: no gathers needed
+            sel = np.flatnonzero(acc)
+            n, ch, status, big_t, tt, adc = (a[sel] for a in (n, ch, status, big_t, tt, adc))
+        table = self._merge(n, ch, dec.code[adc], status, big_t, tt, seq0 + adc)
+        out = self._emit_table(table)
+        events.append(self._gap_events(out))
+        return out, concat_events(events)
+
+    @staticmethod
+    def _unwrap(
+        tt: np.ndarray,
+        ts: np.ndarray,
+        c: np.ndarray,
+        t0: float,
+        ts0: int,
+        c0: int,
+        period: float | np.ndarray,
+        known: bool | np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Sample-index steps and board-time steps (ticks) from each ADC frame's predecessor."""
+        d = (ts - _shifted(ts, ts0)).view(np.int16).astype(np.int64)  # centred, mod 2**16
+        with np.errstate(invalid="ignore", over="ignore"):
+            dt_ticks = (tt - _shifted(tt, t0)) / TICK_S
+            # receive time bridges timestamp wraps only over plausible gaps: a corrupt or
+            # missing receive time (0, 1e15, NaN) must not throw the sample index away.
+            # Only steps more than half a wrap off board time can round to a wrap.
+            far = np.flatnonzero(np.abs(dt_ticks - d) > _HALF_TS)
+        if len(far):
+            dtf, df = dt_ticks[far], d[far]
+            plausible = np.abs(dtf) <= MAX_BRIDGE_TICKS
+            wraps = np.where(plausible, np.rint((np.where(plausible, dtf, 0.0) - df) / TS_WRAP), 0)
+            d[far] += TS_WRAP * np.maximum(wraps, 0.0).astype(np.int64)
+        est = np.rint(d / period).astype(np.int64)
+        if known is True:
+            step = est
+        else:
+            # before the rate is known the counter corrects the predicted step (mod 256)
+            dc = (c - _shifted(c, c0) - est.astype(np.uint8)).view(np.int8)
+            step = est + dc if known is False else np.where(known, est, est + dc)
+        return step, d
+
+    def _membership(self, n: np.ndarray, ch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(accepted, late) per ADC frame; updates max_n."""
+        running = np.maximum.accumulate(n)
+        np.maximum(running, self.max_n, out=running)
+        late = _shifted(running, self.max_n) >= n + WINDOW
+        self.max_n = int(running[-1])
+        key = n * 4 + ch
+        fresh = ~late
+        taken = self._accepted_keys()
+        if taken:
+            fresh &= ~_isin(key, taken)
+        idx = np.flatnonzero(fresh)
+        kf = key[idx]
+        if len(kf) > 1 and not bool(np.all(kf[1:] > kf[:-1])):  # else all distinct
+            _, first = _first_of_each(kf)
+            idx = idx[first]
+            fresh = np.zeros(len(n), dtype=bool)
+            fresh[idx] = True
+        return fresh, late
+
+    def _merge(
+        self,
+        n: np.ndarray,
+        ch: np.ndarray,
+        code: np.ndarray,
+        status: np.ndarray,
+        big_t: np.ndarray,
+        tt: np.ndarray,
+        seq: np.ndarray,
+    ) -> np.ndarray:
+        """All open samples (old and new, in n order) with the accepted frames merged in.
+
+        A new sample takes its board time from its first accepted frame, every touched
+        sample its receive time and seq from its last one. Grouped by a stable sort of
+        the old rows then the frames (no sort at all for an in-order stream)."""
+        old = self._open
+        if len(n) == 0:
+            return _rows_to_array(old)
+        k = len(old)
+        if k:
+            cols = list(zip(*old, strict=True))
+            all_n = np.concatenate((np.array(cols[0], dtype=np.int64), n))
+        else:
+            all_n = n
+        perm = None
+        if not bool(np.all(all_n[1:] >= all_n[:-1])):
+            perm = np.argsort(all_n, kind="stable")
+            all_n = all_n[perm]
+        first = np.empty(len(all_n), dtype=bool)  # first of its sample (in sorted order)
+        first[0] = True
+        np.not_equal(all_n[1:], all_n[:-1], out=first[1:])
+        last = np.empty_like(first)
+        last[:-1] = first[1:]
+        last[-1] = True
+        gid = np.cumsum(first) - 1  # sample (table row) of each element, sorted order
+        first_at, last_at = np.flatnonzero(first), np.flatnonzero(last)
+        if perm is not None:
+            first_at, last_at = perm[first_at], perm[last_at]
+            gid_orig = np.empty_like(gid)
+            gid_orig[perm] = gid
+            gid = gid_orig
+        rows = len(first_at)
+        table = np.empty(rows, dtype=SAMPLE_DTYPE)  # every field is written below
+        table["n"] = all_n[first]
+        if k:
+            big_t = np.concatenate((np.array(cols[1], dtype=np.int64), big_t))
+            tt = np.concatenate((np.array(cols[2], dtype=np.float64), tt))
+            seq = np.concatenate((np.array(cols[3], dtype=np.int64), seq))
+        table["ticks"] = big_t[first_at]
+        table["t"] = tt[last_at]
+        table["seq"] = seq[last_at]
+        # channels via flat (rows * 3) scratch arrays: contiguous scatters, one copy each
+        code3 = np.zeros(rows * 3, dtype=np.int32)
+        status3 = np.zeros(rows * 3, dtype=np.uint8)
+        present3 = np.zeros(rows * 3, dtype=bool)
+        for j, r in enumerate(old):
+            at = int(gid[j]) * 3
+            code3[at : at + 3], status3[at : at + 3], present3[at : at + 3] = r[4], r[5], r[6]
+        flat = gid[k:] * 3 + (ch - 1)
+        code3[flat] = code
+        status3[flat] = status
+        present3[flat] = True
+        table["code"] = code3.reshape(rows, 3)
+        table["status"] = status3.reshape(rows, 3)
+        table["present"] = present3.reshape(rows, 3)
+        return table
+
+    def _emit_table(self, table: np.ndarray) -> np.ndarray:
+        """_emit_rows for a table: every sample but the last WINDOW is closed."""
+        bound = self.max_n - WINDOW
+        i = int(np.searchsorted(table["n"], bound, side="right"))
+        tail = _array_to_rows(table[i:])
+        done = self._emit_rows(tail)
+        return table[: i + len(done)]
+
+    def _gap_events(self, out: np.ndarray) -> np.ndarray:
+        if len(out) <= _FEW_ROWS:
+            return self._gap_events_rows(_array_to_rows(out))
+        parts = []
+        present = out["present"]
+        if not present.all():
+            missing_row, missing_ch = np.nonzero(~present)
+            parts.append(
+                make_events(
+                    EventKind.GAP, out["t"][missing_row], missing_ch + 1, out["n"][missing_row]
+                )
+            )
+        n = out["n"]
+        prev = _shifted(n, n[0] - 1 if self._last_row_n is None else self._last_row_n)
+        lost = n - prev - 1
+        idx = np.flatnonzero(lost > 0)
+        if len(idx):
+            parts.append(
+                make_events(EventKind.SAMPLES_LOST, out["t"][idx], 0, prev[idx] + 1, lost[idx])
+            )
+        self._last_row_n = int(n[-1])
+        return concat_events(parts)

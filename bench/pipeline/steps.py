@@ -1,0 +1,306 @@
+"""The pipeline: source batches in, samples, results and events out. One for live and replay.
+
+decode (protocol.batch) -> assemble (bench.pipeline.assembly) -> reference fusion + estimator.
+Stateful across batches, and its output does not depend on how the stream is batched,
+so a live run and the replay of its log give the same rows bit for bit.
+
+A live step carries a few frames and usually nothing else, so every stage returns early
+(shared empty arrays) when it has nothing to do: the processing thread shares the GIL
+with acquisition and logging, and its fixed cost per step is the live latency.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.config import Config
+from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
+from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
+from bench.pipeline.assembly import Assembler
+from bench.pipeline.stats import Stats
+from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
+from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.results import RESULT_DTYPE
+from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
+from devices.base import SourceBatch
+from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
+from protocol.frames import empty_frames
+from protocol.layout import STATUS_FAULT_MASK
+
+_NOTICE_KINDS = {
+    "parse_error": EventKind.PARSE_ERROR,
+    "truncated": EventKind.PARSE_ERROR,
+    "disconnect": EventKind.DISCONNECT,
+    "reconnect": EventKind.RECONNECT,
+}
+_VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
+_NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
+_NO_FRAMES = empty_frames()
+SCALAR_SAMPLES = 16
+"""Steps with up to this many samples are fused by the scalar twin (a live step has one or
+two); more by the vectorised path. Same float64 results either way (tests prove it)."""
+
+
+class _ByteRuns:
+    """Copies the named fields of one structured dtype into another as raw byte runs
+    (fields adjacent in both merged into one run): a byte copy per run instead of a typed,
+    unaligned copy per field, which is what dominates building a packed structured array."""
+
+    def __init__(self, dst: np.dtype, src: np.dtype, names: list[str]) -> None:
+        self.dst, self.src, self.names = dst, src, names
+        runs: list[list[int]] = []  # [dst offset, src offset, size]
+        for name in names:
+            (dt, d_off), (st, s_off) = dst.fields[name][:2], src.fields[name][:2]
+            assert dt == st, name
+            if runs and runs[-1][0] + runs[-1][2] == d_off and runs[-1][1] + runs[-1][2] == s_off:
+                runs[-1][2] += dt.itemsize
+            else:
+                runs.append([d_off, s_off, dt.itemsize])
+        self.dst_view, self.src_view = (
+            np.dtype(
+                {
+                    "names": [f"r{i}" for i in range(len(runs))],
+                    "formats": [f"V{r[2]}" for r in runs],
+                    "offsets": [r[k] for r in runs],
+                    "itemsize": dtype.itemsize,
+                }
+            )
+            for k, dtype in ((0, dst), (1, src))
+        )
+
+    def copy(self, dst: np.ndarray, src: np.ndarray) -> None:
+        if dst.dtype != self.dst or src.dtype != self.src:  # not the layouts planned for
+            for name in self.names:
+                dst[name] = src[name]
+            return
+        d, s = dst.view(self.dst_view), src.view(self.src_view)
+        for name in self.dst_view.names:
+            d[name] = s[name]
+
+
+_FROM_SAMPLE = _ByteRuns(
+    RESULT_DTYPE, SAMPLE_DTYPE, ["n", "seq", "ticks", "t", "code", "status", "present"]
+)
+_FROM_ESTIMATE = _ByteRuns(RESULT_DTYPE, ESTIMATE_DTYPE, list(ESTIMATE_DTYPE.names))
+
+
+@dataclass(slots=True)
+class StepOutput:
+    """Everything one pipeline step produced; sinks take what they need."""
+
+    frames: np.ndarray = field(default_factory=empty_frames)  # as received
+    outcome: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint8))  # per frame
+    seq0: int = 0  # arrival index of frames[0]
+    samples: np.ndarray = field(default_factory=lambda: np.zeros(0, SAMPLE_DTYPE))
+    results: np.ndarray = field(default_factory=lambda: np.zeros(0, RESULT_DTYPE))
+    events: np.ndarray = field(default_factory=lambda: np.zeros(0, EVENT_DTYPE))
+    status: np.ndarray = field(default_factory=lambda: np.zeros(0, STATUS_DTYPE))
+    speed: np.ndarray = field(default_factory=lambda: np.zeros(0, SPEED_DTYPE))
+    batch: SourceBatch | None = None
+
+
+class Pipeline:
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.assembler = Assembler(config.sample_rate_hz)
+        self.estimator = Estimator(config)
+        self.stats = Stats()
+        self.seq = 0  # frames seen so far (arrival index of the next one)
+        self.first_ticks: int | None = None
+        self.tolerance_permil = config.tolerance_permil
+        self._angles = np.asarray(config.angles_rad, dtype=np.float64)
+        self._scale = np.array([c.scale for c in config.channels], dtype=np.float64)
+        self._offset = np.array([c.offset for c in config.channels], dtype=np.float64)
+        self._scale_list, self._offset_list = self._scale.tolist(), self._offset.tolist()
+        self._angles_tuple = tuple(self._angles.tolist())
+        self._last_fail_mask = 0
+        self.last_status: np.void | None = None
+        self.last_speed: np.void | None = None
+
+    # -- stream ----------------------------------------------------------------------------
+    def process(self, batch: SourceBatch) -> StepOutput:
+        frames = batch.frames
+        dec = decode_batch(frames, self.config.base_id)
+        seq0 = self.seq
+        self.seq += len(frames)
+        self.stats.count_frames(dec.can_id)
+        samples, events = self.assembler.push(frames["t"], dec, seq0)
+        return self._fuse(samples, events, frames, dec, seq0, batch)
+
+    def finish(self) -> StepOutput:
+        samples, events = self.assembler.finish()
+        return self._fuse(samples, events, _NO_FRAMES, EMPTY_DECODED, self.seq, None)
+
+    # -- internals -------------------------------------------------------------------------
+    def _fuse(
+        self,
+        samples: np.ndarray,
+        events: np.ndarray,
+        frames: np.ndarray,
+        dec: DecodedBatch,
+        seq0: int,
+        batch: SourceBatch | None,
+    ) -> StepOutput:
+        t = frames["t"]
+        status = status_records(t, dec, seq0)
+        speed = speed_records(t, dec, seq0)
+        results, fusion_events = self.compute(samples, speed)
+        parts = [events, fusion_events]
+        if batch is not None and (batch.link_errors or batch.notices):
+            parts.append(self._source_events(batch))
+        if len(status):
+            parts.append(self._state_events(status))
+            self.last_status = status[-1]
+            self.stats.status_frames += len(status)
+        if len(speed):
+            self.last_speed = speed[-1]
+            self.stats.speed_frames += len(speed)
+        all_events = concat_events(parts)
+        self.stats.count_events(all_events)
+        self.stats.count_results(results)
+        self.stats.count_channel_frames(t, dec)
+        return StepOutput(
+            frames, dec.outcome, seq0, samples, results, all_events, status, speed, batch
+        )
+
+    def compute(self, samples: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fusion of emitted samples: reference method + estimator."""
+        if len(samples) == 0:
+            if len(speed) == 0:  # nothing to fuse and nothing for the estimator to keep
+                return _NO_RESULTS, NO_EVENTS
+            _, est_events = self.estimator.push(
+                NO_SAMPLES, np.zeros((0, 3)), np.zeros((0, 3), bool), speed
+            )
+            return _NO_RESULTS, est_events
+        if self.first_ticks is None:
+            self.first_ticks = int(samples["ticks"][0])
+        if len(samples) <= SCALAR_SAMPLES:
+            return self._compute_scalar(samples, speed)
+        res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
+        _FROM_SAMPLE.copy(res, samples)
+        res["time_s"] = (samples["ticks"] - self.first_ticks) / 10000.0
+        ok = usable(samples)
+        acc = (samples["code"].astype(np.float64) - self._offset) * self._scale
+        acc_usable = np.where(ok, acc, np.nan)
+        res["acc"] = acc_usable
+        ref = fuse(acc_usable, self._angles, self.config.g, self.tolerance_permil)
+        res["slopes"] = ref.slopes
+        res["votes"] = ref.votes
+        res["weights"] = ref.weights
+        res["gradient"] = ref.gradient
+        res["valid"] = ref.valid
+        est, est_events = self.estimator.push(samples, acc, ok, speed)
+        _FROM_ESTIMATE.copy(res, est)
+        vote_events = self._vote_events(samples["t"], samples["n"], ref.votes)
+        return res, concat_events([vote_events, est_events])
+
+    def _vote_events(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
+        """A VOTE_FAIL event whenever the set of failed votes changes to a non-empty one
+        (value: failed votes as bits 1, 2, 4), and INVALID when it becomes all three."""
+        v = votes.view(np.uint8)
+        mask = 7 - (v[:, 0] | v[:, 1] << 1 | v[:, 2] << 2).astype(np.int64)
+        prev = np.empty_like(mask)
+        prev[0] = self._last_fail_mask
+        prev[1:] = mask[:-1]
+        self._last_fail_mask = int(mask[-1])
+        idx = np.flatnonzero((mask != prev) & (mask != 0))
+        if len(idx) == 0:
+            return NO_EVENTS
+        m = mask[idx]
+        inv = idx[m == 7]
+        return concat_events(
+            [
+                make_events(EventKind.VOTE_FAIL, t[idx], 0, n[idx], m),
+                make_events(EventKind.INVALID, t[inv], 0, n[inv]),
+            ]
+        )
+
+    def _compute_scalar(
+        self, samples: np.ndarray, speed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Twin of :meth:`compute` for the sample or two of a live step: the same float64
+        operations in the same order on Python floats (arccos and tan by numpy's own ufuncs,
+        whose results may differ from libm's), each result row built as one tuple."""
+        ticks_l, t_l = samples["ticks"].tolist(), samples["t"].tolist()
+        n_l, seq_l = samples["n"].tolist(), samples["seq"].tolist()
+        code_l, status_l = samples["code"].tolist(), samples["status"].tolist()
+        present_l = samples["present"].tolist()
+        off, sc = self._offset_list, self._scale_list
+        nan = math.nan
+        acc_l, ok_l, use_l = [], [], []
+        for code, st, pr in zip(code_l, status_l, present_l, strict=True):
+            acc = [(float(code[k]) - off[k]) * sc[k] for k in (0, 1, 2)]
+            ok = [pr[k] and not st[k] & STATUS_FAULT_MASK for k in (0, 1, 2)]
+            acc_l.append(acc)
+            ok_l.append(ok)
+            use_l.append([acc[k] if ok[k] else nan for k in (0, 1, 2)])
+        slopes_l = pair_gradients_few(use_l, self._angles_tuple, self.config.g)
+        ref = [vote_and_weigh(sl, self.tolerance_permil) for sl in slopes_l]
+        self.estimator.buffer_speeds(speed)
+        est_rows, est_events = self.estimator.push_rows(
+            ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, ok_l
+        )
+        first = self.first_ticks if self.first_ticks is not None else 0
+        rows = [
+            (
+                n_l[k], seq_l[k], ticks_l[k], t_l[k], (ticks_l[k] - first) / 10000.0,
+                code_l[k], status_l[k], present_l[k], use_l[k], slopes_l[k], *ref[k],
+                *est_rows[k],
+            )
+            for k in range(len(n_l))
+        ]  # fmt: skip
+        res = np.array(rows, dtype=RESULT_DTYPE)
+        vote_rows = self._vote_event_rows(t_l, n_l, [r[0] for r in ref])
+        events = [np.array(vote_rows, dtype=EVENT_DTYPE) if vote_rows else NO_EVENTS]
+        events.append(np.array(est_events, dtype=EVENT_DTYPE) if est_events else NO_EVENTS)
+        return res, concat_events(events)
+
+    def _vote_event_rows(
+        self, tl: list[float], nl: list[int], votes: list[list[bool]]
+    ) -> list[tuple]:
+        """Twin of :meth:`_vote_events` for the few samples of a live step (EVENT_DTYPE rows)."""
+        prev = self._last_fail_mask
+        masks, change = [], []
+        for i, (v1, v2, v3) in enumerate(votes):
+            m = (not v1) + 2 * (not v2) + 4 * (not v3)
+            if m != prev and m:
+                change.append(i)
+            masks.append(m)
+            prev = m
+        self._last_fail_mask = prev
+        if not change:
+            return []
+        rows = [(tl[i], _VOTE_FAIL, 0, nl[i], masks[i]) for i in change]
+        invalid = [(tl[i], _INVALID, 0, nl[i], 0) for i in change if masks[i] == 7]
+        if invalid:  # as concat_events orders two parts: stable by time, NaN last
+            rows = sorted(rows + invalid, key=lambda r: (r[0] != r[0], r[0]))
+        return rows
+
+    def _state_events(self, status: np.ndarray) -> np.ndarray:
+        prev_state = -1 if self.last_status is None else int(self.last_status["state"])
+        states = status["state"].astype(np.int64)
+        prev = np.concatenate(([prev_state], states[:-1]))
+        ch = states != prev
+        return make_events(EventKind.BOARD_STATE, status["t"][ch], 0, -1, states[ch])
+
+    def _source_events(self, batch: SourceBatch) -> np.ndarray:
+        parts = []
+        if batch.link_errors:
+            le = batch.link_errors
+            parts.append(
+                make_events(
+                    EventKind.LINK_ERROR,
+                    np.array([e.t for e in le], dtype=np.float64),
+                    0,
+                    -1,
+                    np.array([int(e.outcome) for e in le]),
+                )
+            )
+        for notice in batch.notices:
+            kind = _NOTICE_KINDS.get(notice.kind)
+            if kind is not None:
+                parts.append(make_events(kind, notice.t))
+        return concat_events(parts)

@@ -1,0 +1,1 @@
+"""Replaying recorded logs through the pipeline as fast as possible."""

@@ -1,0 +1,388 @@
+"""A log file played back as a live source: 1x / 10x / max, pause, step, run to the next failure.
+
+The TUI drives a replay exactly like a live run (LiveRunner, snapshots, sinks), so a replayed
+log looks and behaves like the bench did on the day. Pacing lives here, in the source, and
+not in the runner: the runner's acquisition thread just calls :meth:`ReplaySource.read`,
+which hands out the frames that are due at the chosen speed.
+
+Flow control: the runner drops batches when its queue is full, which a replay must never
+cause. So the source only runs ahead of the pipeline by a bounded number of frames; the
+pipeline's progress comes back through :class:`ReplayTap`, a sink added to the runner.
+The same tap ends a "run to the next vote failure" seek: it pauses the source as soon as a
+step carrying a VOTE_FAIL event goes by, and records which sample it was.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from bench.records.events import EventKind, describe
+from devices.base import FileSource, LiveSource, SourceBatch
+
+if TYPE_CHECKING:  # a type only: the screen process imports this module, not the pipeline
+    from bench.pipeline.steps import StepOutput
+
+SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
+"""The speeds the TUI cycles through; None = as fast as the pipeline takes frames."""
+
+MAX_IDLE_GAP_S = 2.0
+"""A pause in the log longer than this is skipped when pacing (a log may hold hours of idle)."""
+
+
+def speed_label(speed: float | None) -> str:
+    return "max" if speed is None else f"{speed:g}x"
+
+
+@dataclass
+class Failure:
+    """Where a seek stopped: the first VOTE_FAIL event after the seek began."""
+
+    t: float
+    n: int
+    text: str
+
+
+@dataclass
+class ReplayStatus:
+    """What the UI shows about the replay (copied under the source's lock)."""
+
+    description: str
+    speed: float | None
+    paused: bool
+    seeking: bool
+    finished: bool
+    emitted: int
+    consumed: int
+    log_t: float
+    log_t0: float
+    position: int  # bytes read from the file (0 when unknown)
+    size: int  # file size in bytes (0 when unknown)
+    failure: Failure | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def fraction(self) -> float:
+        return self.position / self.size if self.size else math.nan
+
+
+class ReplaySource(LiveSource):
+    """Plays a :class:`FileSource` in real time, faster, or as fast as the pipeline goes."""
+
+    def __init__(
+        self,
+        log: FileSource,
+        *,
+        speed: float | None = 1.0,
+        paused: bool = False,
+        step_s: float = 1.0 / 200,
+        batch_frames: int = 2048,
+        max_ahead: int = 16384,
+        max_ahead_batches: int = 256,
+        seek_chunk: int = 64,
+        clock: Callable[[], float] = time.monotonic,
+        description: str | None = None,
+    ) -> None:
+        self.log = log
+        self.description = description or f"replay {getattr(log, 'description', 'log')}"
+        self._batches: Iterator[SourceBatch] = iter(log.batches(batch_frames))
+        self._clock = clock
+        self._cond = threading.Condition()
+        self._speed = speed
+        self._paused = paused
+        self.step_s = step_s
+        self.max_ahead = max(1, max_ahead)
+        self.max_ahead_batches = max(1, max_ahead_batches)
+        self.seek_chunk = max(1, seek_chunk)
+        # the batch being handed out, and how far into it we are
+        self._pending: SourceBatch | None = None
+        self._pos = 0
+        self._extras_sent = False
+        self._exhausted = False
+        self._closed = False
+        self.emitted = 0  # frames handed to the runner
+        self.consumed = 0  # frames the pipeline has processed (from ReplayTap)
+        self.batches_emitted = 0
+        self.batches_consumed = 0
+        self._log_t = math.nan  # log time of the last frame handed out
+        self._log_t0 = math.nan  # log time of the first frame
+        self._anchor: tuple[float, float] | None = None  # (clock, log time) pacing reference
+        self._step_target = math.nan  # while paused: hand out frames up to this log time
+        self._seeking = False
+        self.failure: Failure | None = None
+        self._notes: list[str] = []
+
+    # -- controls (UI thread) -------------------------------------------------------------
+    @property
+    def speed(self) -> float | None:
+        return self._speed
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    def set_speed(self, speed: float | None) -> None:
+        with self._cond:
+            self._speed = speed
+            self._anchor = None
+            self._cond.notify_all()
+
+    def cycle_speed(self) -> float | None:
+        i = SPEEDS.index(self._speed) if self._speed in SPEEDS else -1
+        self.set_speed(SPEEDS[(i + 1) % len(SPEEDS)])
+        return self._speed
+
+    def play(self) -> None:
+        with self._cond:
+            self._paused = False
+            self._seeking = False
+            self._anchor = None
+            self._step_target = math.nan
+            self._cond.notify_all()
+
+    def pause(self) -> None:
+        with self._cond:
+            self._paused = True
+            self._seeking = False
+            self._step_target = math.nan
+            self._cond.notify_all()
+
+    def toggle(self) -> bool:
+        """Play if paused, pause if playing; returns the new paused state."""
+        if self._paused:
+            self.play()
+        else:
+            self.pause()
+        return self._paused
+
+    def step(self, periods: int = 1) -> None:
+        """While paused: hand out the next ``periods`` sample periods of log time."""
+        with self._cond:
+            self._paused = True
+            self._seeking = False
+            base = self._step_target if math.isfinite(self._step_target) else self._log_t
+            if not math.isfinite(base):
+                base = self._next_frame_t() - 1e-9
+            self._step_target = base + periods * self.step_s
+            self._cond.notify_all()
+
+    def seek_failure(self) -> None:
+        """Run as fast as possible until the pipeline reports a vote failure, then pause."""
+        with self._cond:
+            self.failure = None
+            self._seeking = True
+            self._paused = False
+            self._cond.notify_all()
+
+    @property
+    def seeking(self) -> bool:
+        return self._seeking
+
+    @property
+    def finished(self) -> bool:
+        """Every frame of the log has been handed out."""
+        return self._exhausted and self._pending is None
+
+    def status(self) -> ReplayStatus:
+        with self._cond:
+            return ReplayStatus(
+                description=self.description,
+                speed=self._speed,
+                paused=self._paused,
+                seeking=self._seeking,
+                finished=self.finished,
+                emitted=self.emitted,
+                consumed=self.consumed,
+                log_t=self._log_t,
+                log_t0=self._log_t0,
+                position=_safe(self.log.position),
+                size=_safe(self.log.size_bytes),
+                failure=self.failure,
+                notes=list(self._notes),
+            )
+
+    # -- feedback (processing thread, via ReplayTap) --------------------------------------
+    def consumed_to(self, frames: int, batches: int) -> None:
+        with self._cond:
+            self.batches_consumed = max(self.batches_consumed, batches)
+            self.consumed = max(self.consumed, frames)
+            self._cond.notify_all()
+
+    def failure_found(self, failure: Failure) -> None:
+        with self._cond:
+            if self._seeking:
+                self.failure = failure
+                self._seeking = False
+                self._paused = True
+                self._step_target = math.nan
+                self._cond.notify_all()
+
+    # -- LiveSource -----------------------------------------------------------------------
+    def read(self, timeout: float) -> SourceBatch:
+        deadline = self._clock() + max(0.0, timeout)
+        while True:
+            self._fill()
+            with self._cond:
+                if self._closed:
+                    return SourceBatch()
+                batch, wait = self._take()
+                if batch:
+                    return batch
+                if self._pending is None and not self._exhausted:
+                    continue  # the batch was all extras or empty: fetch the next one
+                remaining = deadline - self._clock()
+                if remaining <= 0:
+                    return SourceBatch()
+                self._cond.wait(min(remaining, wait))
+                if self._clock() >= deadline:
+                    return SourceBatch()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        with contextlib.suppress(Exception):
+            self.log.close()
+
+    # -- internals ------------------------------------------------------------------------
+    def _fill(self) -> None:
+        """Fetch the next batch from the file (outside the lock: only this thread reads it)."""
+        if self._pending is not None or self._exhausted:
+            return
+        try:
+            batch = next(self._batches)
+        except StopIteration:
+            batch = None
+        except Exception as exc:  # a reader must not raise, but a replay must survive one that does
+            with self._cond:
+                self._notes.append(f"reading the log stopped: {exc!r}")
+            batch = None
+        with self._cond:
+            if batch is None:
+                self._exhausted = True
+            else:
+                self._pending, self._pos, self._extras_sent = batch, 0, False
+                if not math.isfinite(self._log_t0) and len(batch.frames):
+                    finite = batch.frames["t"][np.isfinite(batch.frames["t"])]
+                    if len(finite):
+                        self._log_t0 = float(finite[0])
+
+    def _next_frame_t(self) -> float:
+        p = self._pending
+        if p is None or self._pos >= len(p.frames):
+            return self._log_t if math.isfinite(self._log_t) else 0.0
+        return float(p.frames["t"][self._pos])
+
+    def _take(self) -> tuple[SourceBatch, float]:
+        """Frames due now (under the lock), and how long to wait when none are."""
+        p = self._pending
+        if p is None:
+            return SourceBatch(), 0.05
+        frames = p.frames[self._pos :]
+        ahead = self.emitted - self.consumed
+        if self.batches_emitted - self.batches_consumed >= self.max_ahead_batches:
+            return SourceBatch(), 0.05  # the runner's queue counts batches: do not fill it
+        if len(frames) == 0:
+            k = 0
+        elif self._seeking:
+            k = min(len(frames), max(0, self.seek_chunk - ahead))
+        elif self._paused:
+            k = self._due(frames, self._step_target) if math.isfinite(self._step_target) else 0
+            k = min(k, max(0, self.max_ahead - ahead))
+        elif self._speed is None:
+            k = min(len(frames), max(0, self.max_ahead - ahead))
+        else:
+            k = min(self._due(frames, self._paced_target(frames)), max(0, self.max_ahead - ahead))
+        wait = 0.05
+        if k == 0 and len(frames) and not self._paused and self._speed and not self._seeking:
+            target = self._paced_target(frames)
+            t_next = float(frames["t"][0])
+            if math.isfinite(t_next) and math.isfinite(target):
+                wait = min(0.05, max(0.0005, (t_next - target) / self._speed))
+        out = frames[:k]
+        batch = SourceBatch(out.copy()) if k else SourceBatch()
+        if not self._extras_sent and (k or len(frames) == 0):
+            # link errors and notices go out with the first frames of their batch
+            batch.link_errors, batch.notices = list(p.link_errors), list(p.notices)
+            self._extras_sent = True
+        self._pos += k
+        self.emitted += k
+        if batch:
+            self.batches_emitted += 1
+        if k:
+            t = out["t"][np.isfinite(out["t"])]
+            if len(t):
+                self._log_t = float(t[-1])
+        if self._pos >= len(p.frames):
+            self._pending = None
+        return batch, wait
+
+    def _paced_target(self, frames: np.ndarray) -> float:
+        """The log time that is due now at the current speed."""
+        now = self._clock()
+        t_next = float(frames["t"][0])
+        if not math.isfinite(t_next):
+            return math.inf  # no receive times in this log: pace by flow control only
+        if self._anchor is None:
+            start = self._log_t if math.isfinite(self._log_t) else t_next
+            self._anchor = (now, start)
+        wall0, log0 = self._anchor
+        target = log0 + (now - wall0) * (self._speed or 1.0)
+        if t_next - target > MAX_IDLE_GAP_S:
+            self._anchor = (now, t_next)  # skip a long idle stretch in the log
+            target = t_next
+        return target
+
+    @staticmethod
+    def _due(frames: np.ndarray, target: float) -> int:
+        """Leading frames with t <= target (frames without a time go with their neighbours)."""
+        t = frames["t"]
+        if not math.isfinite(target):
+            return len(frames) if target > 0 else 0
+        due = ~(t > target)  # NaN counts as due
+        if due.all():
+            return len(frames)
+        return int(np.argmin(due))
+
+
+def _safe(fn: Callable[[], int]) -> int:
+    try:
+        return int(fn())
+    except Exception:
+        return 0
+
+
+class ReplayTap:
+    """Sink that reports pipeline progress back to the :class:`ReplaySource` (flow control,
+    seek to the next vote failure). Add it to the runner before starting it."""
+
+    def __init__(self, source: ReplaySource) -> None:
+        self.source = source
+        self.dropped = 0  # frames the runner dropped: handed out, never processed
+        self.batches = 0
+
+    def write(self, step: StepOutput) -> None:
+        if len(step.events):
+            kinds = step.events["kind"]
+            self.dropped += int(step.events["value"][kinds == EventKind.DROPPED].sum())
+            if self.source.seeking:
+                fails = step.events[kinds == EventKind.VOTE_FAIL]
+                if len(fails):
+                    ev = fails[0]
+                    self.source.failure_found(Failure(float(ev["t"]), int(ev["n"]), describe(ev)))
+        if step.batch is not None:
+            self.batches += 1
+            self.source.consumed_to(step.seq0 + len(step.frames) + self.dropped, self.batches)
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,58 @@
+"""Replay a recorded log through the same pipeline a live run uses."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from bench.config import Config
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import RESULT_DTYPE
+from bench.replay.prefetch import prefetch
+from bench.sinks.base import Sink
+from devices.base import FileSource, SourceBatch
+
+
+@dataclass
+class ReplayOutcome:
+    pipeline: Pipeline
+    results: np.ndarray  # every result, when collected (else empty)
+    notices: list[str] = field(default_factory=list)
+
+
+def run_steps(pipeline: Pipeline, batches: Iterable[SourceBatch]) -> Iterable[StepOutput]:
+    """Every pipeline step for a stream of batches, ending with the final flush."""
+    for batch in batches:
+        yield pipeline.process(batch)
+    yield pipeline.finish()
+
+
+def replay(
+    source: FileSource,
+    config: Config,
+    sinks: Iterable[Sink] = (),
+    *,
+    collect: bool = True,
+    batch_frames: int = 65536,
+    on_progress: Callable[[int], None] | None = None,
+) -> ReplayOutcome:
+    """Run a log through a fresh Pipeline, feeding each step to the sinks.
+
+    The source is read a few batches ahead in a thread of its own (bench.replay.prefetch)."""
+    pipeline = Pipeline(config)
+    sinks = list(sinks)
+    parts: list[np.ndarray] = []
+    notices: list[str] = []
+    for step in run_steps(pipeline, prefetch(source.batches(batch_frames))):
+        if step.batch is not None:
+            notices += [f"{n.kind}: {n.detail}" for n in step.batch.notices]
+        for sink in sinks:
+            sink.write(step)
+        if collect and len(step.results):
+            parts.append(step.results)
+        if on_progress is not None:
+            on_progress(source.position())
+    results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
+    return ReplayOutcome(pipeline, results, notices)

@@ -1,0 +1,44 @@
+"""The closing summary of a run or replay, as a rich table."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.table import Table
+
+from bench.pipeline.stats import Stats
+
+
+def summary_table(stats: Stats, title: str = "summary") -> Table:
+    table = Table(title=title, show_header=False, box=None, pad_edge=False)
+    table.add_column(style="bold")
+    table.add_column(justify="right")
+    frac = stats.valid / stats.samples if stats.samples else 0.0
+    rows = [
+        ("frames", f"{stats.frames}"),
+        ("samples", f"{stats.samples}"),
+        ("valid", f"{stats.valid} ({100 * frac:.2f} %)"),
+        ("degraded (estimator)", f"{stats.degraded}"),
+        ("vote failures v1/v2/v3", "/".join(str(v) for v in stats.vote_failures)),
+        ("samples lost", f"{stats.samples_lost}"),
+        ("CRC errors", f"{stats.crc_errors}"),
+        ("wrong DLC", f"{stats.wrong_dlc}"),
+        ("unknown IDs", f"{stats.unknown_id}"),
+        ("UART link errors", f"{stats.link_errors}"),
+        ("log parse errors", f"{stats.parse_errors}"),
+        (
+            "gaps ch1/ch2/ch3",
+            "/".join(str(c.gaps) for c in stats.channels),
+        ),
+        (
+            "duplicates / late",
+            f"{sum(c.duplicates for c in stats.channels)} / {sum(c.late for c in stats.channels)}",
+        ),
+        ("status-flagged", "/".join(str(c.status_flagged) for c in stats.channels)),
+    ]
+    for k, v in rows:
+        table.add_row(k, v)
+    return table
+
+
+def print_summary(stats: Stats, title: str = "summary", console: Console | None = None) -> None:
+    (console or Console(stderr=True)).print(summary_table(stats, title))

@@ -1,0 +1,24 @@
+"""Run the screen on a session: start it, run the App in this terminal, always stop it."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from bench.engine.client import EngineSession
+    from bench.live.session import Session
+
+
+def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
+    """Start the session, run the App in this terminal, and always stop the session (a live
+    one runs in the engine process, :mod:`bench.engine.client`; the App cannot tell). Even a
+    Ctrl-C while Textual is still being imported stops the session."""
+    try:
+        from bench.tui.app import BenchApp
+
+        app = BenchApp(session, handle_signals=True, **app_kwargs)
+        session.start()
+        code = app.run()
+    finally:
+        session.stop()
+    return int(code or 0) if not (session.runner and session.runner.error) else 1
