@@ -48,13 +48,14 @@ def status_line(s: Snapshot, elapsed: float) -> str:
         grad = f"{g:+7.2f}" if math.isfinite(g) else "invalid"
     valid = 100.0 * st.valid / st.samples if st.samples else 0.0
     gaps = sum(c.gaps for c in st.channels)
+    kdrop = f" kdrop {st.socket_drops}" if st.socket_drops else ""
     rec = ""
     if s.recording:
         rec = f" log {s.recording.get('frames', 0)}f"
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
-        f"drop {s.frames_dropped}{rec}"
+        f"drop {s.frames_dropped}{kdrop}{rec}"
     )
 
 
