@@ -150,7 +150,7 @@ class Bench:
     def signal(self, sig: int) -> None:
         os.kill(self.pid, sig)
 
-    def join(self, timeout: float = 120.0) -> int:
+    def join(self, timeout: float = 600.0) -> int:
         self.proc.join(timeout)
         if self.proc.is_alive():
             self.proc.kill()
@@ -159,7 +159,7 @@ class Bench:
         assert self.proc.exitcode is not None
         return self.proc.exitcode
 
-    def stop(self, timeout: float = 120.0) -> int:
+    def stop(self, timeout: float = 600.0) -> int:
         """Ctrl-C, as an operator ends a run; the exit code."""
         if self.proc.is_alive():
             self.signal(signal.SIGINT)
