@@ -1,10 +1,12 @@
-"""``python -m benchmarks [--quick] [--json OUT] [--markdown OUT] [--only NAME ...]``
+"""``python -m benchmarks [NAME ...] [--quick] [--json OUT] [--markdown OUT] [--only NAME ...]``
 
-Runs every measurement, each in a fresh Python process, prints the table (figure, anchor,
-ratio, target, PASS/MISS) with the machine it ran on, and writes it as JSON
-(default ``benchmarks/results.json``). The full run takes 3-5 minutes on 2 cores;
-``--quick`` (smaller files, short live runs) about one minute and is for smoke-testing the
-harness, not for quoting.
+Runs every measurement (or the NAMEs given, e.g. ``accuracy``), each in a fresh Python
+process, prints the table (figure, anchor, ratio, target, PASS/MISS) and the accuracy
+tables per scenario with the machine it ran on, and writes it as JSON (default
+``benchmarks/results.json``; a run of some measurements only replaces their figures there
+and keeps the others'). The full run takes 3-5 minutes on 2 cores; ``--quick`` (smaller
+files, short live runs) about one minute and is for smoke-testing the harness, not for
+quoting.
 """
 
 from __future__ import annotations
@@ -20,6 +22,9 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks._worker import MARKER, PARTIAL
+from benchmarks.accuracy import is_accuracy
+from benchmarks.accuracy import markdown as accuracy_markdown
+from benchmarks.accuracy import print_tables as print_accuracy
 from benchmarks.common import ROOT, Figure, fmt_value, machine_info
 
 DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
@@ -31,6 +36,7 @@ PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 480),
     ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
     ("latency", {"seconds": 30.0, "tui": True}, {"seconds": 8.0, "tui": True}, 120),
+    ("accuracy", {}, {}, 300),
 ]
 
 
@@ -79,6 +85,8 @@ def print_table(
     console = Console()
     if not console.is_terminal:  # piped or in CI: room for the whole table
         console = Console(width=150)
+    accuracy_figures = [f for f in figures if is_accuracy(f)]
+    figures = [f for f in figures if not is_accuracy(f)]
     title = "gradient bench benchmarks" + (
         " (--quick: smoke test, not for quoting)" if quick else ""
     )
@@ -108,6 +116,8 @@ def print_table(
         if note:
             anchor = f" [anchor: {f.anchor_label}]" if f.anchor_label else ""
             console.print(f"  [bold]{f.label}[/]: {note}{anchor}", highlight=False)
+    if accuracy_figures:
+        print_accuracy(accuracy_figures, console)
     console.print(machine_line(machine) + f"; total {elapsed:.0f} s", highlight=False)
 
 
@@ -127,6 +137,8 @@ def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
         "|---|---:|---:|---:|---|---|",
     ]
     for f in figures:
+        if is_accuracy(f):
+            continue
         anchor = _anchor_text(f)
         if f.anchor_label and f.anchor is not None:
             anchor = f"{anchor} ({f.anchor_label})"
@@ -135,8 +147,38 @@ def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
             f"{f.target_text()} | {f.status} |"
         )
     lines.append("")
+    accuracy = accuracy_markdown(figures)
+    if accuracy:
+        lines += [accuracy]
     lines.append(f"{when}, {machine_line(machine)}.")
     return "\n".join(lines) + "\n"
+
+
+def _kept(path: Path, selected: set[str]) -> tuple[list[Figure], list[dict[str, Any]]]:
+    """Figures and runs of the measurements not run now, from an earlier results file."""
+    try:
+        doc = json.loads(path.read_text())
+        runs = [r for r in doc.get("runs", []) if r.get("name") not in selected]
+        for r in runs:  # where and when those figures were measured
+            r.setdefault("started", doc.get("started"))
+            r.setdefault("machine", doc.get("machine"))
+        keep = {r["name"] for r in runs}
+        figures = [
+            Figure.from_dict(d) for d in doc.get("figures", []) if _measurement_of(d) in keep
+        ]
+    except (OSError, ValueError, KeyError, TypeError):
+        return [], []
+    return figures, runs
+
+
+def _measurement_of(fig: dict[str, Any]) -> str:
+    """Which PLAN measurement made a figure (its key's first word; live_max_rate* = live_rate)."""
+    key = str(fig.get("key", ""))
+    if key.startswith("live_max_rate"):
+        return "live_rate"
+    if key.startswith(("replay_", "read_", "mcap_", "pipeline_")):
+        return "replay"
+    return key.split("_", 1)[0]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,30 +186,48 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="~1 minute smoke run (small files)")
     ap.add_argument("--json", metavar="OUT", default=str(DEFAULT_JSON), help="results file")
     ap.add_argument("--markdown", metavar="OUT", help="also write the table as Markdown")
+    names = sorted({p[0] for p in PLAN})
     ap.add_argument(
-        "--only",
-        nargs="+",
-        choices=sorted({p[0] for p in PLAN}),
-        help="run only these measurements",
+        "names",
+        nargs="*",
+        metavar="NAME",
+        help=f"run only these measurements ({', '.join(names)}); default: all",
     )
+    ap.add_argument("--only", nargs="+", choices=names, help="the same as NAMEs")
     args = ap.parse_args(argv)
+    unknown = sorted(set(args.names) - set(names))
+    if unknown:
+        ap.error(f"unknown measurement {unknown[0]!r} (expected one of {', '.join(names)})")
+    selected = set(args.names) | set(args.only or ())
     machine = machine_info()
     started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.monotonic()
     figures: list[Figure] = []
     runs = []
     for name, full, quick, timeout in PLAN:
-        if args.only and name not in args.only:
+        if selected and name not in selected:
             continue
         kwargs = quick if args.quick else full
         print(f"benchmarks: {name} {kwargs} ...", file=sys.stderr, flush=True)
         t = time.monotonic()
         got = run_worker(name, kwargs, timeout if not args.quick else timeout / 2)
-        runs.append({"name": name, "kwargs": kwargs, "seconds": round(time.monotonic() - t, 1)})
+        runs.append(
+            {
+                "name": name,
+                "kwargs": kwargs,
+                "seconds": round(time.monotonic() - t, 1),
+                "started": started,
+                "machine": machine,
+            }
+        )
         figures += got
     elapsed = time.monotonic() - t0
     machine["loadavg_at_end"] = [round(x, 2) for x in os.getloadavg()]
     print_table(figures, machine, elapsed, args.quick)
+    out = Path(args.json)
+    if selected:
+        figures_all, runs_all = _kept(out, selected)
+        figures, runs = figures_all + figures, runs_all + runs
     doc = {
         "started": started,
         "quick": args.quick,
@@ -179,7 +239,6 @@ def main(argv: list[str] | None = None) -> int:
             s: sum(f.status == s for f in figures) for s in ("PASS", "MISS", "ERROR", "INFO")
         },
     }
-    out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2, default=str) + "\n")
     print(f"benchmarks: wrote {out}", file=sys.stderr)

@@ -48,6 +48,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import live
 
         return live.measure_latency(**kwargs)
+    if name == "accuracy":
+        from benchmarks import accuracy
+
+        return accuracy.measure(log=_log, **kwargs)
     raise SystemExit(f"unknown measurement {name!r}")
 
 

@@ -21,7 +21,7 @@ from bench.cli import main
 # --------------------------------------------------------------------------- JUnit schema
 
 _SUITE_CHILDREN = {"properties", "testcase", "system-out", "system-err"}
-_CASE_CHILDREN = {"skipped", "error", "failure", "system-out", "system-err"}
+_CASE_CHILDREN = {"properties", "skipped", "error", "failure", "system-out", "system-err"}
 
 
 def _number(value: str | None, kind: type) -> None:
@@ -54,6 +54,7 @@ def validate_junit(path: Path) -> ET.Element:
             _number(case.get("time"), float)
             kids = [c.tag for c in case]
             assert set(kids) <= _CASE_CHILDREN
+            assert "properties" not in kids[1:]  # at most one, first (pytest, Xray, Testmo)
             assert sum(k in ("failure", "error", "skipped") for k in kids) <= 1
             for k in counted:
                 counted[k] += kids.count(k)

@@ -207,3 +207,75 @@ def test_live_bus_without_config_is_nominal_and_says_so() -> None:
     assert config.announcement() == (
         "calibration: nominal ICD values (ch1 30 deg, ch2 0 deg, ch3 -30 deg; tolerance 1 permil)"
     )
+
+
+def test_accept_says_and_records_its_calibration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    out = tmp_path / "level"
+    assert main(["accept", "level", "--out", str(out), "--no-plots"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "bench: calibration: scenario of plan level as built (ch1 30 deg" in err
+    record = json.loads((out / "record.json").read_text())
+    assert record["config"]["origin"] == "scenario"
+    assert record["config"]["described"] == "scenario of plan level as built"
+    meta = read_metadata(out / "run.mcap")
+    assert meta["config"]["origin"] == "scenario"
+    assert meta["run"]["calibration"] == "scenario of plan level as built"
+
+
+def test_accept_on_an_emulated_board_uses_that_board_as_built(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    sc = short_level_run(tmp_path, 1.0)
+    plan = tmp_path / "board.toml"
+    plan.write_text(
+        '[plan]\nexpect = "pass"\nduration_s = 0.5\n'
+        '[config.fusion]\ntolerance_permil = 2.0\n[[checks]]\nkind = "no_frame_loss"\n'
+    )
+    out = tmp_path / "out"
+    assert main(["accept", str(plan), "--emulate", str(sc), "--out", str(out), "--no-plots"]) == 0
+    record = json.loads((out / "record.json").read_text())
+    values = record["config"]["values"]
+    assert [c["angle_deg"] for c in values["channels"]] == [30.2, 0.1, -29.8]
+    assert values["tolerance_permil"] == 2.0  # the plan's overlay on top
+    assert record["config"]["described"] == (
+        f"scenario level3.toml as built + [config] of {plan.name}"
+    )
+
+
+def test_demo_log_replays_to_the_results_shown_live(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Replaying `bench demo`'s log gave other results than the screen had shown (nominal
+    angles instead of the board's): the recorded calibration makes them identical."""
+    import time
+
+    import bench.commands.tui as tui_command
+
+    def headless(session: object) -> int:
+        session.start()  # type: ignore[attr-defined]
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            snap = session.snapshot(last=1)  # type: ignore[attr-defined]
+            if snap.extra.get("emulator_done"):
+                break
+            time.sleep(0.1)
+        session.stop()  # type: ignore[attr-defined]
+        return 0
+
+    monkeypatch.setattr(tui_command, "show", headless)
+    sc = short_level_run(tmp_path, 2.0)
+    mcap = tmp_path / "demo.mcap"
+    assert main(["demo", "--scenario", str(sc), "--speed", "4", "--mcap", str(mcap)]) == 0
+    capsys.readouterr()
+    assert read_metadata(mcap)["config"]["origin"] == "scenario"
+    assert main(["replay", str(mcap), "--compare", "-q"]) == 0  # identical to the live rows
+    assert "compare: identical" in capsys.readouterr().out
+    empty = tmp_path / "nominal.toml"
+    empty.write_text("")
+    assert main(["replay", str(mcap), "--compare", "-q", "--config", str(empty)]) == 1

@@ -25,6 +25,7 @@ from devices.emulator.scenario import (
     ChannelModel,
     OdometerModel,
     Scenario,
+    VibrationModel,
 )
 from protocol.can_codec import decode
 from protocol.records import AdcSample
@@ -151,7 +152,7 @@ def test_example_documents_every_key():
     )  # optional keys may be commented
     keys |= set(re.findall(r"^\s*\[+([a-z_]+)\]+", text, re.M))
     wanted = {f.name for f in dataclasses.fields(Scenario)} - {"source", "path"}
-    for model in (ChannelModel, BoardModel, OdometerModel):
+    for model in (ChannelModel, BoardModel, OdometerModel, VibrationModel):
         wanted |= {f.name for f in dataclasses.fields(model)}
     wanted |= {
         "length_m",
@@ -160,6 +161,7 @@ def test_example_documents_every_key():
         "duration_s",
         "accel_mps2",
         "allow_reverse",
+        "jerk_mps3",
     }
     wanted |= {"channel", "kind", "start_s", "end_s"}
     for params in FAULT_PARAMS.values():

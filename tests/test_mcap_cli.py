@@ -108,7 +108,8 @@ def test_replay_compare(run_file, tmp_path: Path, capsys) -> None:
     assert main(["replay", str(path), "--compare", "--quiet", "--config", str(cal)]) == 1
     captured = capsys.readouterr()
     out = captured.out + captured.err
-    assert "DIFFERENT" in out and "g12" in out
+    assert "DIFFERENT" in out and "valid (device)" in out
+    assert f"after:  file {cal}" in out
 
 
 def test_emulate_out_mcap_and_log_replay_identically(tmp_path: Path) -> None:

@@ -17,9 +17,12 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
+from bench.acceptance.model import EXIT_CODES
+
+__all__ = ["EXIT_CODES", "check_status", "expectation_text", "plan_line", "result", "status_of"]
+
 STATUSES = ("ok", "as designed", "not as designed", "failure", "error", "skipped")
 FAILING = frozenset({"not as designed", "failure"})
-EXIT_CODES = {"pass": 0, "fail": 1, "error": 2}
 
 
 def check_status(verdict: str, expect: str | None) -> str:

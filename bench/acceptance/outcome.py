@@ -6,8 +6,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from bench.acceptance.model import EXIT_CODES, Measurement, RunData
+from bench.acceptance import expectation
+from bench.acceptance.model import Measurement, RunData
 from bench.acceptance.plan import Plan
+from bench.acceptance.signoff import RunContext
 from bench.config import Config
 
 
@@ -29,7 +31,14 @@ class RunOutcome:
     error: str | None = None
     files: dict[str, Path] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)  # sim summary, stats, fault record
+    context: RunContext = field(default_factory=RunContext)  # unit, station, operator, board
+
+    @property
+    def result(self) -> str:
+        """pass / fail / error: whether the run behaved as the plan designed it
+        (:mod:`bench.acceptance.expectation`); ``verdict`` is what the device did."""
+        return expectation.result(self.measurements, self.error)
 
     @property
     def exit_code(self) -> int:
-        return EXIT_CODES[self.verdict]
+        return expectation.EXIT_CODES[self.result]

@@ -36,6 +36,7 @@ from bench.acceptance.feeds import BATCH_FRAMES, can_batches, fault_infos, uart_
 from bench.acceptance.model import Measurement, RunData, StepWindow
 from bench.acceptance.outcome import RunOutcome
 from bench.acceptance.plan import Plan, Step
+from bench.acceptance.signoff import RunContext, board_identity
 from bench.config import Config, load_config
 from bench.errors import BenchError
 from bench.pipeline.steps import Pipeline, StepOutput
@@ -63,6 +64,7 @@ class Options:
     say: Callable[[str], None] = lambda text: None
     plots: bool = True
     command: str = field(default_factory=lambda: " ".join(sys.argv))
+    context: RunContext = field(default_factory=RunContext)  # unit, station, operator
 
 
 def has_live_source(args: argparse.Namespace | None) -> bool:
@@ -125,11 +127,19 @@ def _now() -> str:
     return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
-def run_config(plan: Plan, config_path: str | None) -> Config:
+def run_config(plan: Plan, config_path: str | None, emulate: str | None = None) -> Config:
     """--config wins (a real board's calibration sheet); else the emulated board as built
-    with the plan's [config] overlay; else the nominal values with the overlay."""
+    (``--emulate SCENARIO``'s, or the plan's own) with the plan's [config] overlay; else the
+    nominal values with the overlay."""
     if config_path:
         return load_config(config_path)
+    if emulate:
+        from bench.acceptance.plan import build_config
+        from devices.emulator import load_scenario
+
+        sc = load_scenario(emulate)
+        name = Path(sc.path).name if sc.path else str(emulate)
+        return build_config(sc, plan.config_overlay, plan.file, f"scenario {name}")
     return plan.config()
 
 
@@ -138,6 +148,7 @@ def _metadata(plan: Plan, config: Config, source: str, mode: str, command: str) 
         "bench_version": __version__,
         "source": source,
         "config_source": config.source,
+        "calibration": config.describe(),
         "config_toml": config.to_toml(),
         "command": command,
         "started_utc": _now(),
@@ -202,6 +213,11 @@ def _run_data(
     )
 
 
+def _board(config: Config, pipeline: Pipeline) -> dict[str, Any]:
+    """The board as it identified itself (its base id and last BOARD_STATUS)."""
+    return board_identity(config.base_id, pipeline.last_status, pipeline.stats.status_frames)
+
+
 def _check_log(sink: Any) -> None:
     """A run whose MCAP log failed has no record to stand on: the bench failed."""
     if getattr(sink, "error", None):
@@ -242,6 +258,7 @@ def _run_emulated(
         sink.close()
     _check_log(sink)
     info["stats"] = pipeline.stats.as_dict()
+    info["board"] = _board(config, pipeline)
     sent = _uart_sent(sim) if plan.link == "uart" else len(sim.frames)
     run = _run_data(
         collector,
@@ -346,6 +363,7 @@ def _run_live(
         raise BenchError(runner.error)
     _check_log(sink)
     info["stats"] = runner.pipeline.stats.as_dict()
+    info["board"] = _board(config, runner.pipeline)
     sent = getattr(player, "frames_sent", None) if player is not None else None
     snap = runner.snapshot(last=1)
     run = _run_data(
@@ -400,7 +418,8 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
     from bench.live.setup import open_emulator, open_live
 
     out = prepare_out_dir(opts.out_dir)
-    config = run_config(plan, opts.config_path)
+    config = run_config(plan, opts.config_path, getattr(opts.live_args, "emulate", None))
+    opts.say(config.announcement())
     live = has_live_source(opts.live_args)
     if live:
         mode = "live"
@@ -472,6 +491,7 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         out_dir=out,
         error=error,
         info=info,
+        context=opts.context.with_board(info.get("board")),
     )
     from bench.acceptance.report.write import write_reports
 

@@ -12,12 +12,15 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from bench.errors import BenchError
 
 if TYPE_CHECKING:
     from bench.acceptance.outcome import RunOutcome
+    from bench.acceptance.plan import Plan
+    from bench.acceptance.signoff import RunContext
 
 _STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
 
@@ -55,6 +58,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="virtual board speed for --realtime (default 1 = real time)",
     )
     p.add_argument("--no-plots", action="store_true", help="report.html without PNG plots")
+    rec = p.add_argument_group(
+        "for the record", "the unit, the station and the operator (record.json, junit.xml, report)"
+    )
+    rec.add_argument("--dut-serial", metavar="SN", help="serial number of the unit under test")
+    rec.add_argument("--dut-firmware", metavar="VERSION", help="its firmware version")
+    rec.add_argument("--dut-hardware", metavar="REV", help="its hardware revision")
+    rec.add_argument(
+        "--station", help="the test station (default: $BENCH_STATION or the host name)"
+    )
+    rec.add_argument(
+        "--operator", help="who runs the test (default: $BENCH_OPERATOR or the login name)"
+    )
     p.add_argument("--config", help="calibration config (TOML); default: the plan's board")
     add_source_arguments(p)
     p.add_argument(
@@ -63,6 +78,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="live run against the virtual board playing SCENARIO (instead of a real board)",
     )
     p.set_defaults(func=run)
+
+
+def run_context(args: argparse.Namespace, plan: Plan) -> RunContext:
+    """The unit (the plan's, command-line values winning), the station and the operator."""
+    from bench.acceptance.signoff import RunContext, default_operator, default_station
+
+    dut = plan.dut.override(
+        serial=args.dut_serial, firmware=args.dut_firmware, hardware=args.dut_hardware
+    )
+    return RunContext(
+        dut=dut,
+        station=args.station or default_station(),
+        operator=args.operator or default_operator(),
+    )
 
 
 def list_table() -> Table:
@@ -123,8 +152,9 @@ def run(args: argparse.Namespace) -> int:
         answers=answers,
         config_path=args.config,
         live_args=args,
-        say=lambda text: err.print(f"bench: {text}", highlight=False),
+        say=lambda text: err.print(f"bench: {text}", highlight=False, soft_wrap=True),
         plots=not args.no_plots,
+        context=run_context(args, plan),
     )
     err.print(f"bench: acceptance plan {plan.name}: {plan.title}", highlight=False)
     outcome = run_plan(plan, opts)
@@ -135,7 +165,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def result_table(outcome: RunOutcome) -> Table:
-    from bench.acceptance.report.text import format_limits, format_value
+    from bench.acceptance.expectation import status_of
+    from bench.acceptance.report.measured import measured_text
+    from bench.acceptance.report.text import format_limits
 
     table = Table(title=f"acceptance {outcome.plan.name}")
     table.add_column("check", style="bold")
@@ -144,23 +176,38 @@ def result_table(outcome: RunOutcome) -> Table:
     table.add_column("verdict", no_wrap=True)
     for m in outcome.measurements:
         verdict = f"[{_STYLE[m.verdict]}]{m.verdict.upper()}[/]"
-        if m.expect is not None:
+        status = status_of(m)
+        if status == "as designed":
+            verdict += " [green](as designed)[/]"
+        elif status == "not as designed":
+            verdict += " [bold red](expected fail)[/]"
+        elif m.expect is not None:
             verdict += f" [dim](expected {m.expect})[/]"
-        table.add_row(m.name, format_value(m), format_limits(m), verdict)
+        table.add_row(m.name, measured_text(m), format_limits(m), verdict)
     return table
 
 
 def print_outcome(outcome: RunOutcome, console: Console) -> None:
     """The table, then one line per check that did not pass: which one and by how much."""
+    from bench.acceptance.expectation import expectation_text, plan_line, status_of
+
     console.print(result_table(outcome))
     for m in outcome.measurements:
         if m.verdict != "pass":
             style = _STYLE[m.verdict]
             console.print(f"[{style}]{m.verdict.upper()}[/] {m.name}: {m.detail}", highlight=False)
-    style = _STYLE[outcome.verdict]
+        if status_of(m) in ("as designed", "not as designed"):
+            console.print(f"  {m.name}: {expectation_text(m)}", highlight=False, markup=False)
+    res = outcome.result
+    line = plan_line(outcome.plan.name, outcome.plan.expect, outcome.measurements, res)
     console.print(
-        f"[bold {style}]{outcome.verdict.upper()}[/] plan {outcome.plan.name} "
-        f"(plan expects {outcome.plan.expect}) in {outcome.wall_s:.1f} s; report: "
+        f"[bold {_STYLE[res]}]{res.upper()}[/] {escape(_tail(line, outcome.plan.name, res))} "
+        f"in {outcome.wall_s:.1f} s; report: "
         f"{outcome.files.get('report', outcome.out_dir / 'report.html')}",
         highlight=False,
     )
+
+
+def _tail(line: str, name: str, res: str) -> str:
+    """``plan NAME (why)`` from plan_line's ``plan NAME: RESULT (why)``."""
+    return f"plan {name}" + line.removeprefix(f"plan {name}: {res.upper()}")

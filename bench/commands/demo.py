@@ -23,9 +23,10 @@ DEMO_SCENARIO = Path(devices.__file__).resolve().parent / "scenarios" / "demo.to
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
-        help="the TUI on the built-in virtual board: a grade profile, faults coming and going",
+        help="the TUI on the built-in virtual board: a metro service, faults coming and going",
         description="Open the bench TUI on the in-process virtual board playing the demo "
-        "scenario (10 min over hills with faults coming and going), logging to logs/ like "
+        "scenario (9 min of a metro service over hills with faults coming and going), logging "
+        "to logs/ like "
         "`bench run`. Keys: p pause display, r record, m mark, +/- tolerance, q quit.",
     )
     p.add_argument(

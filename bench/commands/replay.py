@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 from rich.console import Console
 from rich.markup import escape
@@ -15,6 +16,7 @@ from rich.progress import (
     TransferSpeedColumn,
 )
 
+from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.replay.run import replay
@@ -46,7 +48,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--compare",
         action="store_true",
-        help="(MCAP input) report where the recomputed results differ from the recorded ones",
+        help="(MCAP input) would this run have passed with --config? One table: validity "
+        "and vote failures before (recorded calibration) and after (--config) and, with "
+        "--plan, each check's verdict both ways; exit 1 when the results differ",
+    )
+    p.add_argument(
+        "--plan",
+        metavar="PLAN",
+        help="with --compare: judge the acceptance plan's checks (file or shipped name) on "
+        "both sides",
     )
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     p.set_defaults(func=run)
@@ -56,6 +66,15 @@ def run(args: argparse.Namespace) -> int:
     from bench.replay.sources import open_replay
 
     console = Console(stderr=True)
+    if args.plan and not args.compare:
+        raise BenchError("--plan judges a plan's checks both ways: it needs --compare")
+    if args.compare and not str(args.input).lower().endswith(".mcap"):
+        raise BenchError("--compare needs an .mcap input (only MCAP logs hold recorded results)")
+    plan = None
+    if args.plan:
+        from bench.acceptance.plan import load_plan
+
+        plan = load_plan(args.plan)
     config = replay_config(args.config, args.input)
     source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them
@@ -102,14 +121,35 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=console)
     if args.compare:
-        if not str(args.input).lower().endswith(".mcap"):
-            raise BenchError(
-                "--compare needs an .mcap input (only MCAP logs hold recorded results)"
-            )
-        from bench.mcaplog.compare import compare_results, print_comparison
-        from bench.mcaplog.recorded import read_results
-
-        report = compare_results(read_results(args.input), outcome.results)
-        print_comparison(report, console)
-        return 0 if report.identical else 1
+        return _compare(args, config, outcome.results, plan, Console())
     return 0
+
+
+def _compare(
+    args: argparse.Namespace, config: Config, recomputed: Any, plan: Any, console: Console
+) -> int:
+    """Before (the recorded calibration) against after (this replay's) in one table."""
+    from bench.acceptance.whatif import comparison_table, measure, replay_side
+    from bench.mcaplog.compare import compare_results
+    from bench.mcaplog.recorded import read_results, recorded_config
+
+    recorded = recorded_config(args.input) or Config()
+    before = replay_side(args.input, recorded, "before (recorded)")
+    after = replay_side(
+        args.input, config, "after (--config)" if args.config else "after (recomputed)"
+    )
+    if plan is not None:
+        measure(plan, [before, after], args.input)
+    report = compare_results(read_results(args.input), recomputed)
+    print(f"before: {recorded.describe()}")
+    print(f"after:  {config.describe()}")
+    console.print(comparison_table(before, after, report.rows_differing, plan))
+    if report.identical:
+        line = f"compare: identical ({report.matched_rows} rows match the recording exactly)"
+    else:
+        line = (
+            f"compare: DIFFERENT ({report.rows_differing} of {report.matched_rows} rows "
+            f"differ from the recording)"
+        )
+    console.print(line, style="green" if report.identical else "bold red", highlight=False)
+    return 0 if report.identical else 1

@@ -96,11 +96,12 @@ def status_frames(
     counters: np.ndarray,
     states: np.ndarray,
     sample_rate_hz: int,
-    temperature_c: int,
+    temperature_c: np.ndarray,
     supply_v: float,
     errors: np.ndarray,
 ) -> FrameSet:
-    """BOARD_STATUS frames, encoded one by one with protocol.can_codec (10 per second)."""
+    """BOARD_STATUS frames, encoded one by one with protocol.can_codec (10 per second);
+    ``temperature_c`` per frame (whole degrees)."""
     supply = min(max(round(supply_v * 10), 0), 255)
     rows = []
     for k in range(len(when_us)):
@@ -109,7 +110,7 @@ def status_frames(
                 int(counters[k]) & 0xFF,
                 int(states[k]),
                 sample_rate_hz,
-                temperature_c,
+                int(temperature_c[k]),
                 supply,
                 min(int(errors[k]), 255),
             ),

@@ -27,6 +27,8 @@ LAYER_NOISE = 1
 LAYER_FAULT = 2
 LAYER_ODOMETER = 3
 LAYER_UART = 4
+LAYER_VIBRATION = 5
+LAYER_WHEEL = 6
 
 
 def rng_for(seed: int, layer: int, index: int = 0) -> np.random.Generator:

@@ -26,6 +26,7 @@ from protocol.layout import (
     DEFAULT_SAMPLE_RATE_HZ,
     G0,
     NOMINAL_ANGLES_DEG,
+    NOMINAL_SCALE,
     SPEED_REF_ID,
     STATUS_BIT_NAMES,
 )
@@ -72,6 +73,7 @@ class TrainPhase:
     duration_s: float
     accel_mps2: float
     allow_reverse: bool = False  # may this phase take the speed through zero?
+    jerk_mps3: float | None = None  # ramp limit into this phase; None = the scenario's jerk_mps3
 
 
 @dataclass(frozen=True, slots=True)
@@ -85,11 +87,14 @@ class ChannelModel:
     vibration_mps2: float = 0.0  # sine amplitude along the sensitive axis
     vibration_hz: float = 0.0
     vibration_phase_deg: float = 0.0
+    bias_tempco_mps2_per_k: float = 0.0  # bias change per kelvin away from the start temperature
 
 
 @dataclass(frozen=True, slots=True)
 class BoardModel:
-    temperature_c: int = 35
+    temperature_c: int = 35  # at the start of the run (the calibration's temperature)
+    temperature_end_c: float | None = None  # approached exponentially; None = stays constant
+    temperature_tau_s: float = 900.0  # time constant of the approach
     supply_v: float = 24.0
     errors0: int = 0
     status_counter0: int = 0
@@ -106,8 +111,46 @@ class OdometerModel:
     drift_ppm: float = 0.0
     offset_s: float = 0.0037  # first SPEED_REF after this much true time
     noise_mps: float = 0.0
-    lag_s: float = 0.0  # the speed it reports is this old
+    lag_s: float = 0.0  # latency: the speed it reports is this old
     counter0: int = 0
+    resolution_mps: float = 0.0  # speed quantisation step (0: the wire's 1 mm/s)
+    slide_depth_mps: float = 0.0  # wheel slide while braking: deepest shortfall of one cycle
+    slide_period_s: float = 1.2  # one WSP cycle: slide develops, brake released, wheel recovers
+    slide_min_decel_mps2: float = 0.3  # slides only while braking harder than this
+    slip_depth_mps: float = 0.0  # wheel slip while motoring: largest excess of one cycle
+    slip_period_s: float = 1.0
+    slip_min_accel_mps2: float = 0.3  # slips only while accelerating harder than this
+    wsp_jitter: float = 0.0  # each cycle's depth is depth * (1 - wsp_jitter * U(0, 1))
+    low_adhesion_start_s: float = 0.0  # slide and slip happen only inside this time window
+    low_adhesion_end_s: float | None = None  # None = the end of the run
+
+
+@dataclass(frozen=True, slots=True)
+class VibrationModel:
+    """The car body's rigid-body vibration (one motion, felt by all three sensors alike).
+
+    Amplitudes hold at ``reference_speed_mps`` and scale with (|v| / reference)^exponent;
+    none at standstill."""
+
+    vertical_mps2: float = 0.0  # tonal amplitude of the body's bounce mode
+    longitudinal_mps2: float = 0.0  # tonal amplitude along the track
+    frequency_hz: float = 2.5
+    longitudinal_phase_deg: float = 90.0  # longitudinal tone relative to the vertical one
+    broadband_vertical_mps2: float = 0.0  # RMS of the broadband part
+    broadband_longitudinal_mps2: float = 0.0
+    broadband_low_hz: float = 0.5
+    broadband_high_hz: float = 20.0
+    reference_speed_mps: float = 20.0
+    speed_exponent: float = 1.0
+
+    @property
+    def active(self) -> bool:
+        return bool(
+            self.vertical_mps2
+            or self.longitudinal_mps2
+            or self.broadband_vertical_mps2
+            or self.broadband_longitudinal_mps2
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -140,6 +183,8 @@ class Scenario:
     initial_speed_mps: float = 0.0
     initial_position_m: float = 0.0
     vertical_curve_m: float = 50.0
+    vertical_curve_accel: bool = False  # add v^2/R normal to the track on vertical curves
+    jerk_mps3: float = 0.0  # ramp limit of the acceleration between phases; 0 = steps
     counter0: int = 0
     board_time0_ticks: int = 0
     start_time_s: float = 0.0
@@ -151,6 +196,7 @@ class Scenario:
     )
     board: BoardModel = field(default_factory=BoardModel)
     odometer: OdometerModel = field(default_factory=OdometerModel)
+    vibration: VibrationModel = field(default_factory=VibrationModel)
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -188,8 +234,9 @@ def _parse_train(file: str, items: list[Any]) -> tuple[TrainPhase, ...]:
         dur = t.num("duration_s", 0.0, 0.0, 1e6, lo_open=True)
         acc = t.num("accel_mps2", 0.0, -10.0, 10.0)
         rev = t.flag("allow_reverse", False)
+        jerk = t.num("jerk_mps3", 0.0, 0.0, 100.0) if t.has("jerk_mps3") else None
         t.done()
-        out.append(TrainPhase(dur, acc, rev))
+        out.append(TrainPhase(dur, acc, rev, jerk))
     return tuple(out)
 
 
@@ -213,6 +260,7 @@ def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
                 vibration_mps2=t.num("vibration_mps2", 0.0, 0.0, 100.0),
                 vibration_hz=t.num("vibration_hz", 0.0, 0.0, 100_000.0),
                 vibration_phase_deg=t.num("vibration_phase_deg", 0.0, -360.0, 360.0),
+                bias_tempco_mps2_per_k=t.num("bias_tempco_mps2_per_k", 0.0, -1.0, 1.0),
             )
         )
         t.done()
@@ -226,6 +274,10 @@ def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
     t = Table(file, "board", value)
     b = BoardModel(
         temperature_c=t.integer("temperature_c", 35, -128, 127),
+        temperature_end_c=(
+            t.num("temperature_end_c", 35.0, -128.0, 127.0) if t.has("temperature_end_c") else None
+        ),
+        temperature_tau_s=t.num("temperature_tau_s", 900.0, 0.0, 1e6, lo_open=True),
         supply_v=t.num("supply_v", 24.0, 0.0, 25.5),
         errors0=t.integer("errors0", 0, 0, 255),
         status_counter0=t.integer("status_counter0", 0, 0, 255),
@@ -253,9 +305,51 @@ def _parse_odometer(file: str, value: Any) -> OdometerModel:
         noise_mps=t.num("noise_mps", 0.0, 0.0, 10.0),
         lag_s=t.num("lag_s", 0.0, 0.0, 10.0),
         counter0=t.integer("counter0", 0, 0, 255),
+        resolution_mps=t.num("resolution_mps", 0.0, 0.0, 10.0),
+        slide_depth_mps=t.num("slide_depth_mps", 0.0, 0.0, 50.0),
+        slide_period_s=t.num("slide_period_s", 1.2, 0.0, 60.0, lo_open=True),
+        slide_min_decel_mps2=t.num("slide_min_decel_mps2", 0.3, 0.0, 10.0),
+        slip_depth_mps=t.num("slip_depth_mps", 0.0, 0.0, 50.0),
+        slip_period_s=t.num("slip_period_s", 1.0, 0.0, 60.0, lo_open=True),
+        slip_min_accel_mps2=t.num("slip_min_accel_mps2", 0.3, 0.0, 10.0),
+        wsp_jitter=t.num("wsp_jitter", 0.0, 0.0, 1.0),
+        low_adhesion_start_s=t.num("low_adhesion_start_s", 0.0, 0.0, None),
+        low_adhesion_end_s=(
+            t.num("low_adhesion_end_s", 0.0, 0.0, None) if t.has("low_adhesion_end_s") else None
+        ),
     )
     t.done()
+    if o.low_adhesion_end_s is not None and o.low_adhesion_end_s <= o.low_adhesion_start_s:
+        raise t.error(
+            "low_adhesion_end_s",
+            f"must be > low_adhesion_start_s ({o.low_adhesion_start_s:g}), "
+            f"got {o.low_adhesion_end_s!r}",
+        )
     return o
+
+
+def _parse_vibration(file: str, value: Any, rate: int) -> VibrationModel:
+    t = Table(file, "vibration", value)
+    nyquist = rate / 2.0
+    v = VibrationModel(
+        vertical_mps2=t.num("vertical_mps2", 0.0, 0.0, 50.0),
+        longitudinal_mps2=t.num("longitudinal_mps2", 0.0, 0.0, 50.0),
+        frequency_hz=t.num("frequency_hz", 2.5, 0.0, nyquist, lo_open=True),
+        longitudinal_phase_deg=t.num("longitudinal_phase_deg", 90.0, -360.0, 360.0),
+        broadband_vertical_mps2=t.num("broadband_vertical_mps2", 0.0, 0.0, 50.0),
+        broadband_longitudinal_mps2=t.num("broadband_longitudinal_mps2", 0.0, 0.0, 50.0),
+        broadband_low_hz=t.num("broadband_low_hz", 0.5, 0.0, nyquist),
+        broadband_high_hz=t.num("broadband_high_hz", 20.0, 0.0, nyquist, lo_open=True),
+        reference_speed_mps=t.num("reference_speed_mps", 20.0, 0.0, 150.0, lo_open=True),
+        speed_exponent=t.num("speed_exponent", 1.0, 0.0, 4.0, lo_open=True),
+    )
+    t.done()
+    if v.broadband_high_hz <= v.broadband_low_hz:
+        raise t.error(
+            "broadband_high_hz",
+            f"must be > broadband_low_hz ({v.broadband_low_hz:g}), got {v.broadband_high_hz!r}",
+        )
+    return v
 
 
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
@@ -353,6 +447,8 @@ _TOP_KEYS = (
     "initial_speed_mps",
     "initial_position_m",
     "vertical_curve_m",
+    "vertical_curve_accel",
+    "jerk_mps3",
     "counter0",
     "board_time0_ticks",
     "start_time_s",
@@ -362,6 +458,7 @@ _TOP_KEYS = (
     "channels",
     "board",
     "odometer",
+    "vibration",
     "faults",
 )
 
@@ -386,6 +483,8 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         initial_speed_mps=top.num("initial_speed_mps", 0.0, -150.0, 150.0),
         initial_position_m=top.num("initial_position_m", 0.0, -1e7, 1e7),
         vertical_curve_m=top.num("vertical_curve_m", 50.0, 0.0, 1e4),
+        vertical_curve_accel=top.flag("vertical_curve_accel", False),
+        jerk_mps3=top.num("jerk_mps3", 0.0, 0.0, 100.0),
         counter0=top.integer("counter0", 0, 0, 255),
         board_time0_ticks=top.integer("board_time0_ticks", 0, 0, 65535),
         start_time_s=top.num("start_time_s", 0.0, 0.0, 1e10),
@@ -395,6 +494,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         channels=_parse_channels(source, top.array("channels")),  # type: ignore[arg-type]
         board=_parse_board(source, top.raw("board", {}), rate),
         odometer=_parse_odometer(source, top.raw("odometer", {})),
+        vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
         faults=tuple(
             _parse_fault(source, i, item, duration) for i, item in enumerate(top.array("faults"), 1)
         ),
@@ -433,10 +533,13 @@ def load_scenario(path: str | Path) -> Scenario:
 
 
 def calibration_toml(sc: Scenario) -> str:
-    """A bench calibration config (bench.config format) matching this board as built.
+    """A bench calibration config (bench.config format) matching this board as built: its
+    calibration sheet (ICD 1.1 and 3), taken at the run's start temperature.
 
-    The angles are the true ones, so a bench run against the emulator with this config
-    isolates fusion errors from calibration errors.
+    Angles, scales and offsets are the true ones (a = (code - offset) * scale undoes the
+    scale error and the bias), so a bench run against the emulator with this config
+    isolates fusion errors from calibration errors; what remains is the bias's drift with
+    temperature, as on a real board.
     """
     lines = [
         f"# calibration of the virtual board of {sc.source}",
@@ -446,6 +549,14 @@ def calibration_toml(sc: Scenario) -> str:
         "",
     ]
     for c in sc.channels:
-        lines += ["[[channels]]", f"angle_deg = {c.angle_deg!r}", ""]
+        scale = NOMINAL_SCALE / (1.0 + c.scale_error)
+        offset = c.bias_mps2 / NOMINAL_SCALE
+        lines += [
+            "[[channels]]",
+            f"angle_deg = {c.angle_deg!r}",
+            f"scale = {scale!r}",
+            f"offset = {offset!r}",
+            "",
+        ]
     lines += ["[fusion]", f"g = {sc.g!r}", ""]
     return "\n".join(lines)

@@ -14,13 +14,19 @@ import numpy as np
 
 from devices.emulator import faults as fx
 from devices.emulator.board import FrameSet, adc_frames, merge, speed_frames, status_frames
+from devices.emulator.motion import scenario_motion
+from devices.emulator.odometer import quantise_speed, wheel_error
 from devices.emulator.scenario import Fault, Scenario
+from devices.emulator.vibration import body_vibration
 from devices.emulator.world import (
+    board_temperature,
+    body_specific_force,
+    curve_normal_accel,
     gradient_profile,
+    gradient_slope,
     quantise,
     sensor_output,
     specific_force,
-    train_motion,
 )
 from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
@@ -192,12 +198,24 @@ def simulate(sc: Scenario) -> Simulation:
     duration_us = fx.to_us(sc.duration_s)
 
     # --- the world and the sensors
-    motion = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, t)
+    motion = scenario_motion(sc, t)
     grad = gradient_profile(sc.track, sc.vertical_curve_m, motion.position_m)
+    body_x, body_z = body_vibration(
+        sc.vibration, t, motion.speed_mps, fx.rng_for(sc.seed, fx.LAYER_VIBRATION)
+    )
+    if sc.vertical_curve_accel:
+        slope = gradient_slope(sc.track, sc.vertical_curve_m, motion.position_m)
+        body_z += curve_normal_accel(motion.speed_mps, grad, slope)
+    extra = sc.vibration.active or sc.vertical_curve_accel
+    rise = board_temperature(sc.board, t) - sc.board.temperature_c
     values = np.empty((3, n), dtype=np.float64)
     for i, ch in enumerate(sc.channels):
-        ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
-        values[i] = sensor_output(ideal, ch, t, fx.rng_for(sc.seed, fx.LAYER_NOISE, i + 1))
+        if extra:
+            ideal = body_specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg, body_x, body_z)
+        else:
+            ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
+        rng = fx.rng_for(sc.seed, fx.LAYER_NOISE, i + 1)
+        values[i] = sensor_output(ideal, ch, t, rng, rise)
 
     # --- layer 1: faults inside the board
     hit: dict[int, np.ndarray] = {}
@@ -369,8 +387,9 @@ def _status_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameS
     states = np.where(degraded, BoardState.DEGRADED, BoardState.RUN)
     counters = sc.board.status_counter0 + k + _jump_offsets(jumps, "status", when)
     b = sc.board
+    temps = np.clip(np.rint(board_temperature(b, when / 1e6)), -128, 127).astype(np.int64)
     return status_frames(
-        sc.base_id, when, counters, states, sc.sample_rate_hz, b.temperature_c, b.supply_v, errors
+        sc.base_id, when, counters, states, sc.sample_rate_hz, temps, b.supply_v, errors
     )
 
 
@@ -385,12 +404,16 @@ def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSe
     when = np.rint((od.offset_s + m * period_s) / rate * 1e6).astype(np.int64)
     keep = when < duration_us
     m, when = m[keep], when[keep]
-    v = train_motion(sc.train, sc.initial_speed_mps, sc.initial_position_m, when / 1e6 - od.lag_s)
-    speed = v.speed_mps
+    measured = when / 1e6 - od.lag_s
+    v = scenario_motion(sc, measured)
+    speed = v.speed_mps + wheel_error(
+        od, measured, v.accel_mps2, v.speed_mps, sc.duration_s, fx.rng_for(sc.seed, fx.LAYER_WHEEL)
+    )
     if od.noise_mps:
         noise = od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
-        speed = np.where(speed == 0.0, 0.0, speed + noise)  # a wheel-pulse odometer at rest reads 0
-    mm = np.clip(np.rint(speed * 1000.0), -(2**31), 2**31 - 1).astype(np.int64)
+        # a wheel-pulse odometer at rest reads 0
+        speed = np.where(v.speed_mps == 0.0, 0.0, speed + noise)
+    mm = quantise_speed(speed, od.resolution_mps)
     ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
     counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)
     return speed_frames(when, counters, mm, ticks)

@@ -8,8 +8,13 @@ in, no I/O. Conventions:
   ICD formula holds whether the train runs forwards or backwards;
 * the vertical curve between two segments is a parabola (what railways build): the gradient
   changes linearly with distance over ``vertical_curve_m`` centred on the segment boundary;
-* the centripetal term v^2/R of a vertical curve is not modelled (it is < 0.01 m/s^2 for
-  railway radii at bench speeds).
+* on a vertical curve the car also accelerates towards the curve's centre, v^2/R normal to
+  the track (``vertical_curve_accel``): a sag presses the car down onto its bogies, a crest
+  lifts it; 1/R = d(alpha)/dx;
+* every sensor reads the car body's specific force (acceleration minus gravity) projected
+  on its own axis: f_x cos(theta) + f_z sin(theta), with f_x along the track and f_z normal
+  to it. Without body motion f_x = a + g sin(alpha) and f_z = g cos(alpha), which is the ICD
+  formula a cos(theta) + g sin(alpha + theta).
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from devices.emulator.scenario import ChannelModel, TrackSegment, TrainPhase
+from devices.emulator.scenario import BoardModel, ChannelModel, TrackSegment, TrainPhase
 from protocol.layout import CODE_MAX, CODE_MIN, NOMINAL_SCALE
 
 
@@ -50,6 +55,47 @@ def gradient_profile(
         else:
             out += step * np.clip((x - boundary) / curve + 0.5, 0.0, 1.0)
     return out
+
+
+def gradient_slope(
+    track: tuple[TrackSegment, ...], default_curve_m: float, x: np.ndarray
+) -> np.ndarray:
+    """d(gradient)/dx (per mille per metre) at positions x: the derivative of
+    :func:`gradient_profile` (an abrupt change, vertical curve 0, has none)."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.zeros_like(x)
+    boundary = 0.0
+    for prev, seg in itertools.pairwise(track):
+        boundary += prev.length_m
+        step = seg.gradient_permil - prev.gradient_permil
+        curve = seg.vertical_curve_m if seg.vertical_curve_m is not None else default_curve_m
+        curve = min(curve, prev.length_m, seg.length_m)
+        if step == 0.0 or curve <= 0.0:
+            continue
+        inside = np.abs(x - boundary) < 0.5 * curve
+        out += np.where(inside, step / curve, 0.0)
+    return out
+
+
+def curve_normal_accel(
+    speed_mps: np.ndarray, gradient_permil: np.ndarray, slope_permil_per_m: np.ndarray
+) -> np.ndarray:
+    """v^2/R normal to the track (m/s^2, positive towards the car's roof, i.e. in a sag).
+
+    alpha = atan(G / 1000), so 1/R = d(alpha)/dx = (G' / 1000) / (1 + (G / 1000)^2)."""
+    tan_a = np.asarray(gradient_permil) / 1000.0
+    return np.asarray(speed_mps) ** 2 * (np.asarray(slope_permil_per_m) / 1000.0) / (1.0 + tan_a**2)
+
+
+def board_temperature(board: BoardModel, t: np.ndarray) -> np.ndarray:
+    """Board temperature (deg C) at run times t (s): from ``temperature_c`` towards
+    ``temperature_end_c`` with time constant ``temperature_tau_s`` (a warming enclosure)."""
+    t = np.asarray(t, dtype=np.float64)
+    t0 = float(board.temperature_c)
+    if board.temperature_end_c is None:
+        return np.full_like(t, t0)
+    end = board.temperature_end_c
+    return end + (t0 - end) * np.exp(-np.maximum(t, 0.0) / board.temperature_tau_s)
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,11 +151,33 @@ def specific_force(
     return accel_mps2 * math.cos(theta) + g * np.sin(alpha + theta)
 
 
-def sensor_output(
-    ideal_mps2: np.ndarray, ch: ChannelModel, t: np.ndarray, rng: np.random.Generator
+def body_specific_force(
+    accel_mps2: np.ndarray,
+    gradient_permil: np.ndarray,
+    g: float,
+    angle_deg: float,
+    extra_x: np.ndarray | float = 0.0,
+    extra_z: np.ndarray | float = 0.0,
 ) -> np.ndarray:
-    """The as-built sensor: scale error, bias, vibration and white noise on the ideal value."""
+    """:func:`specific_force` plus body accelerations along (x) and normal to (z) the track
+    (vibration, v^2/R), each projected on the sensor's axis: x cos(theta) + z sin(theta)."""
+    theta = math.radians(angle_deg)
+    base = specific_force(accel_mps2, gradient_permil, g, angle_deg)
+    return base + (np.asarray(extra_x) * math.cos(theta) + np.asarray(extra_z) * math.sin(theta))
+
+
+def sensor_output(
+    ideal_mps2: np.ndarray,
+    ch: ChannelModel,
+    t: np.ndarray,
+    rng: np.random.Generator,
+    temperature_rise_k: np.ndarray | None = None,
+) -> np.ndarray:
+    """The as-built sensor: scale error, bias (drifting with the board's temperature rise
+    since the start), vibration of its own mounting and white noise on the ideal value."""
     out = ideal_mps2 * (1.0 + ch.scale_error) + ch.bias_mps2
+    if ch.bias_tempco_mps2_per_k and temperature_rise_k is not None:
+        out = out + ch.bias_tempco_mps2_per_k * temperature_rise_k
     if ch.vibration_mps2 and ch.vibration_hz:
         phase = math.radians(ch.vibration_phase_deg)
         out = out + ch.vibration_mps2 * np.sin(2.0 * math.pi * ch.vibration_hz * t + phase)

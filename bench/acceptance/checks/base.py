@@ -22,8 +22,6 @@ ESTIMATORS = {
 }
 
 
-
-
 @dataclass(frozen=True, slots=True)
 class Param:
     """One key a check kind accepts, with its type and range (validated by the plan loader)."""

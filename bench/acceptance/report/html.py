@@ -8,8 +8,11 @@ from typing import Any
 from bench import __version__
 from bench.acceptance.checks.base import ESTIMATORS
 from bench.acceptance.checks.registry import KINDS
+from bench.acceptance.expectation import expectation_text, status_of
 from bench.acceptance.outcome import RunOutcome
-from bench.acceptance.report.text import format_limits, format_value, window_text
+from bench.acceptance.report.measured import measured_text
+from bench.acceptance.report.text import format_limits, window_text
+from bench.acceptance.signoff import SIGN_OFF_CSS, dut_html, sign_off_html
 
 _CSS = """
 body{font-family:system-ui,sans-serif;margin:2em;max-width:1150px;color:#222}
@@ -28,12 +31,14 @@ def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, st
     c = record["counts"]
     rows = []
     for m in outcome.measurements:
+        status = status_of(m)
+        note = "" if m.expect is None and status == "ok" else f"<br>{e(expectation_text(m))}"
         rows.append(
             f"<tr class='{m.verdict}'><td>{e(m.name)}</td><td>{e(m.kind)}</td>"
-            f"<td>{e(format_value(m))}</td><td>{e(format_limits(m))}</td>"
+            f"<td>{e(', '.join(plan.requirement_ids(m.name)))}</td>"
+            f"<td>{e(measured_text(m))}</td><td>{e(format_limits(m))}</td>"
             f"<td>{'' if m.margin is None else e(f'{m.margin:.4g}')}</td>"
-            f"<td>{e(window_text(m))}</td><td><b>{m.verdict.upper()}</b>"
-            f"{'' if m.expect is None else f' (plan expects {e(m.expect)})'}</td>"
+            f"<td>{e(window_text(m))}</td><td><b>{m.verdict.upper()}</b>{note}</td>"
             f"<td>{e(m.detail)}</td></tr>"
         )
     run = record["run"]
@@ -46,7 +51,7 @@ def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, st
         ("finished (UTC)", outcome.finished_utc),
         ("wall time", f"{outcome.wall_s:.2f} s"),
         ("bench version", __version__),
-        ("config", outcome.config.source),
+        ("calibration", outcome.config.announcement().removeprefix("calibration: ")),
     ]
     if "frames" in run:
         info.append(("frames sent / received / logged", _frames_text(run["frames"])))
@@ -68,19 +73,23 @@ def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, st
     kinds = ", ".join(KINDS)
     parts = [
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
-        f"<title>acceptance {e(plan.name)}: {outcome.verdict.upper()}</title>",
-        f"<style>{_CSS}</style></head><body>",
+        f"<title>acceptance {e(plan.name)}: {outcome.result.upper()}</title>",
+        f"<style>{_CSS}{SIGN_OFF_CSS}</style></head><body>",
         f"<h1>Acceptance run: {e(plan.name)}</h1><p>{e(plan.title)}</p>",
-        f"<div class='banner {outcome.verdict}'>{outcome.verdict.upper()}</div>",
+        f"<div class='banner {outcome.result}'>{outcome.result.upper()}</div>",
+        f"<p><b>{e(record['summary'])}</b>; the device's verdict: "
+        f"{outcome.verdict.upper()}, the plan expects {e(plan.expect)}.</p>",
         f"<p>{c['pass']} pass, {c['warn']} warn, {c['fail']} fail, {c['error']} error, "
         f"{c['skip']} skipped.</p>",
     ]
     if outcome.error:
         parts.append(f"<p class='error'><b>The bench failed:</b> {e(outcome.error)}</p>")
     parts += [
-        "<table>",
+        dut_html(outcome.context),
+        "<h2>Run</h2><table>",
         *(f"<tr><th>{e(k)}</th><td>{e(v)}</td></tr>" for k, v in info),
-        "</table><h2>Checks</h2><table><tr><th>check</th><th>kind</th><th>measured</th>",
+        "</table><h2>Checks</h2><table><tr><th>check</th><th>kind</th><th>requirement</th>"
+        "<th>measured</th>",
         "<th>limits</th><th>margin</th><th>window</th><th>verdict</th><th>detail</th></tr>",
         *rows,
         "</table>",
@@ -98,7 +107,9 @@ def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, st
     parts += [
         f"<h2>Plots</h2>{imgs or '<p>no samples: nothing to plot</p>'}",
         f"<h2>Plan</h2><pre>{e(plan.text)}</pre>",
-        f"<h2>Calibration config</h2><pre>{e(outcome.config.to_toml())}</pre>",
+        f"<h2>Calibration config</h2><p>{e(outcome.config.describe())}</p>"
+        f"<pre>{e(outcome.config.to_toml())}</pre>",
+        sign_off_html(),
         f"<p><small>Check kinds: {e(kinds)}. Estimator columns: {e(est)}. "
         "Full record: <a href='record.json'>record.json</a>; CI: "
         "<a href='junit.xml'>junit.xml</a>; the run: run.mcap "

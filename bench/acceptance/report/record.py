@@ -12,7 +12,10 @@ from typing import Any
 import numpy as np
 
 from bench import __version__
+from bench.acceptance.expectation import expectation_text, plan_line, status_of
+from bench.acceptance.model import Measurement
 from bench.acceptance.outcome import RunOutcome
+from bench.acceptance.report.measured import reading_extra
 from bench.acceptance.report.text import counts
 
 RECORD_FORMAT = "acb3-bench-acceptance-record/1"
@@ -24,6 +27,18 @@ def sha256_of(path: Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _measurement(m: Measurement, plan: Any) -> dict[str, Any]:
+    """A measurement as recorded: its own fields, how it stands against the plan's
+    expectation, the requirements it verifies and a step check's reading."""
+    return {
+        **m.as_dict(),
+        "status": status_of(m),
+        "expectation": expectation_text(m),
+        "requirements": list(plan.requirement_ids(m.name)),
+        **reading_extra(m),
+    }
 
 
 def build_record(outcome: RunOutcome, files: dict[str, Any]) -> dict[str, Any]:
@@ -78,12 +93,15 @@ def build_record(outcome: RunOutcome, files: dict[str, Any]) -> dict[str, Any]:
     run_info.update(outcome.info)
     return {
         "format": RECORD_FORMAT,
+        "result": outcome.result,
+        "summary": plan_line(plan.name, plan.expect, outcome.measurements, outcome.result),
         "verdict": outcome.verdict,
         "exit_code": outcome.exit_code,
         "expected_verdict": plan.expect,
         "error": outcome.error,
+        **outcome.context.record(),
         "counts": counts(outcome.measurements),
-        "measurements": [m.as_dict() for m in outcome.measurements],
+        "measurements": [_measurement(m, plan) for m in outcome.measurements],
         "plan": {
             "name": plan.name,
             "title": plan.title,
@@ -101,6 +119,8 @@ def build_record(outcome: RunOutcome, files: dict[str, Any]) -> dict[str, Any]:
         "run": run_info,
         "config": {
             "source": outcome.config.source,
+            "origin": outcome.config.origin,
+            "described": outcome.config.describe(),
             "toml": outcome.config.to_toml(),
             "values": outcome.config.as_dict(),
         },

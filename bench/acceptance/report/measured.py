@@ -7,17 +7,9 @@ the step's expected gradient), but what an operator reads off a tilt table is th
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-
-def format_value(m: Any) -> str:
-    """The judged value with its unit ("n/a" when not measured)."""
-    if m.value is None or not math.isfinite(m.value):
-        return "n/a"
-    if m.unit == "fraction":
-        return f"{m.value:.4%}"
-    return f"{m.value:.6g} {m.unit}"
+from bench.acceptance.report.text import format_value
 
 
 def step_reading(m: Any) -> dict[str, Any] | None:

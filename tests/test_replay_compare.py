@@ -1,0 +1,77 @@
+"""``bench replay run.mcap --compare --config NEW --plan PLAN`` answers "would this run have
+passed with other angles?" in one table that fits 80 columns (issue 18)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bench.cli import main
+
+
+@pytest.fixture(scope="module")
+def level_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("accept") / "level"
+    assert main(["accept", "level", "--out", str(out), "--no-plots"]) == 0
+    return out / "run.mcap"
+
+
+def rows(text: str) -> dict[str, list[str]]:
+    """Table rows by label: the cells right of the label (split on 2+ spaces)."""
+    import re
+
+    out = {}
+    for line in text.splitlines():
+        cells = [c for c in re.split(r"\s{2,}", line.strip()) if c]
+        if len(cells) >= 2:
+            out[cells[0]] = cells[1:]
+    return out
+
+
+def test_compare_with_a_plan_gives_validity_and_every_verdict_both_ways_in_80_columns(
+    level_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.setenv("COLUMNS", "80")
+    tilted = tmp_path / "tilted.toml"
+    # ch1 0.3 deg off: ~5 permil of pair error against a 1 permil vote tolerance
+    tilted.write_text("[[channels]]\nangle_deg = 30.3\n[[channels]]\n[[channels]]\n")
+    code = main(["replay", str(level_run), "--compare", "--config", str(tilted), "--plan", "level"])
+    assert code == 1  # the results differ
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert lines[0].startswith("before: ") and lines[1].startswith("after: ")  # (a long path)
+    assert max(len(line) for line in lines[2:]) <= 80
+    # before/after, title + blank + header + rule, 9 figures, blank, 9 checks, blank, the
+    # plan, blank, the compare line: no row wrapped onto a second line
+    assert len(lines) == 2 + 4 + 9 + 1 + 9 + 1 + 1 + 1 + 1
+    assert out.count("would this run have passed") == 1  # one table
+    table = rows(out)
+    assert table["angles ch1/ch2/ch3, deg"] == ["30/0/-30", "30.3/0/-30"]
+    assert table["valid (device)"][1] == "0.00 %"  # no vote within tolerance any more
+    assert float(table["valid (device)"][0].split()[0]) > 50.0
+    # every check of the plan on one line, with its verdict before and after
+    for name in ("bench estimator at standstill", "bench estimator at cruise"):
+        before, after = table[name]
+        assert before.startswith("PASS") and after.startswith("FAIL"), (name, before, after)
+    assert table["no frame lost"] == ["PASS 0 frames", "PASS 0 frames"]  # not calibration
+    assert table["plan level (expects pass)"] == ["PASS", "FAIL"]
+    assert "before: recorded in run.mcap (scenario of plan level as built)" in out
+    assert f"after:  file {tilted}" in out
+
+
+def test_compare_without_a_new_config_is_identical_both_ways(
+    level_run: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    monkeypatch.setenv("COLUMNS", "80")
+    assert main(["replay", str(level_run), "--compare", "--plan", "level", "-q"]) == 0
+    out = capsys.readouterr().out
+    table = rows(out)
+    assert table["valid (device)"][0] == table["valid (device)"][1]
+    assert table["plan level (expects pass)"] == ["PASS", "PASS"]
+    assert "compare: identical" in out
+
+
+def test_plan_needs_compare(level_run: Path, capsys) -> None:
+    assert main(["replay", str(level_run), "--plan", "level"]) == 2
+    assert "--plan judges a plan's checks both ways: it needs --compare" in capsys.readouterr().err
