@@ -33,10 +33,23 @@ DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 480),
     ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
+    ("replay_memory", {"sizes": [1_000_000, 10_000_000]}, {"sizes": [1_000_000, 2_000_000]}, 900),
+    (
+        "fleet",
+        {"n_logs": 20, "frames_per_log": 300_000},
+        {"n_logs": 20, "frames_per_log": 30_000},
+        600,
+    ),
     ("live_rate", {"confirm_s": 30.0, "probe_s": 5.0}, {"confirm_s": 5.0, "probe_s": 2.0}, 480),
     ("latency", {"seconds": 30.0, "tui": False}, {"seconds": 8.0, "tui": False}, 120),
     ("latency", {"seconds": 30.0, "tui": True}, {"seconds": 8.0, "tui": True}, 120),
     ("accuracy", {}, {}, 300),
+    (
+        "rec_toggle",
+        {"before_s": 5.0, "after_s": 10.0, "toggles": 3},
+        {"before_s": 2.0, "after_s": 3.0, "toggles": 1},
+        180,
+    ),
 ]
 
 

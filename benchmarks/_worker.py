@@ -48,10 +48,22 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import live
 
         return live.measure_latency(**kwargs)
+    if name == "replay_memory":
+        from benchmarks import outputs
+
+        return outputs.measure_memory(out=_Emitting(), **kwargs)
+    if name == "fleet":
+        from benchmarks import outputs
+
+        return outputs.measure_fleet(out=_Emitting(), **kwargs)
     if name == "accuracy":
         from benchmarks import accuracy
 
         return accuracy.measure(log=_log, **kwargs)
+    if name == "rec_toggle":
+        from benchmarks import rec_toggle
+
+        return rec_toggle.measure(**kwargs)
     raise SystemExit(f"unknown measurement {name!r}")
 
 

@@ -32,7 +32,8 @@ def short_level_run(tmp_path: Path, seconds: float = 3.0) -> Path:
 def read_csv(path: Path) -> dict[str, np.ndarray]:
     with path.open() as fh:
         rows = list(csv.DictReader(fh))
-    return {k: np.array([float(r[k]) if r[k] else math.nan for r in rows]) for k in rows[0]}
+    numeric = [k for k in rows[0] if k != "utc"]  # utc is a timestamp
+    return {k: np.array([float(r[k]) if r[k] else math.nan for r in rows]) for k in numeric}
 
 
 def test_example_calibration_sheet_loads_with_its_documented_values() -> None:
@@ -100,7 +101,7 @@ def test_emulator_log_with_its_sheet_replays_like_its_mcap_with_the_recorded_one
     )
     assert a.read_text() == b.read_text()
     # level track: the estimator with the board's own angles reads ~0
-    assert abs(np.nanmean(read_csv(a)["gradient_signed"])) < 0.05
+    assert abs(np.nanmean(read_csv(a)["gradient_signed_permil"])) < 0.05
 
 
 def test_a_log_without_calibration_says_it_replays_with_nominal_values(
@@ -135,7 +136,7 @@ def test_run_emulate_level_run_is_calibrated_as_built_and_replays_identically(
     assert len(rows["v1"]) > 1000
     for k in ("v1", "v2"):
         assert np.mean(rows[k] == 0) < 0.95, k  # not failing on every sample
-    assert abs(np.nanmean(rows["gradient_signed"])) < 0.05  # level track
+    assert abs(np.nanmean(rows["gradient_signed_permil"])) < 0.05  # level track
     # the replay of its log takes the recorded calibration: the same rows, bit for bit
     assert main(["replay", str(mcap), "--csv", str(again), "-q"]) == 0
     assert again.read_text() == live.read_text()
@@ -145,7 +146,7 @@ def test_run_emulate_level_run_is_calibrated_as_built_and_replays_identically(
     assert main(["replay", str(mcap), "--config", str(empty), "--csv", str(nominal), "-q"]) == 0
     bad = read_csv(nominal)
     assert np.all(bad["v1"] == 0) and np.all(bad["v2"] == 0)
-    assert np.nanmean(bad["gradient_signed"]) > 2.0
+    assert np.nanmean(bad["gradient_signed_permil"]) > 2.0
 
 
 def test_tui_replay_of_an_mcap_uses_the_recorded_calibration(
@@ -159,7 +160,7 @@ def test_tui_replay_of_an_mcap_uses_the_recorded_calibration(
     import bench.live.session as session_module
 
     monkeypatch.setattr(session_module, "live_session", lambda setup, config, *a, **k: setup)
-    monkeypatch.setattr(tui_command, "show", lambda setup: used.append(setup) or 0)
+    monkeypatch.setattr(tui_command, "show", lambda setup, **app: used.append(setup) or 0)
     real_setup = session_module.replay_setup
 
     def setup_spy(path: str, config: Config, **kwargs: object) -> object:
@@ -186,7 +187,7 @@ def test_tui_and_demo_on_an_emulated_board_use_it_as_built(
     sc = short_level_run(tmp_path, 0.5)
     plans: list[object] = []
     monkeypatch.setattr(engine, "start_engine", lambda plan, warn: plans.append(plan))
-    monkeypatch.setattr(tui_command, "show", lambda session: 0)
+    monkeypatch.setattr(tui_command, "show", lambda session, **app: 0)
     assert main(["tui", "--emulate", str(sc)]) == 0
     assert main(["demo", "--scenario", str(sc)]) == 0
     cal = tmp_path / "cal.toml"

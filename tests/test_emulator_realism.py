@@ -186,6 +186,22 @@ def test_wheel_slide_and_slip_are_wsp_sawtooth_errors():
     assert (true_b - v[braking]).max() == pytest.approx(0.6, abs=0.02)  # up to 0.6 m/s low
 
 
+def test_the_odometer_truth_says_what_each_speed_ref_got_wrong():
+    sim = sim_of(SLIDE)
+    t, v = speeds(sim)
+    od = sim.odometer
+    assert len(od) == len(t)  # no fault: every frame the odometer sent arrived
+    assert np.allclose(od["reported_mps"], v)
+    assert np.allclose(od["measured_s"], od["time_s"])  # lag_s = 0
+    tm = od["measured_s"]
+    true = np.where(tm < 2.0, 20.0, np.where(tm < 14.0, 20.0 - (tm - 2.0), 8.0 + 0.8 * (tm - 14.0)))
+    assert np.allclose(od["train_speed_mps"], true, atol=1e-9)
+    braking = (tm > 2.0) & (tm < 14.0)
+    assert od["wheel_error_mps"][braking].min() == pytest.approx(-0.6, abs=0.02)
+    assert (od["wheel_error_mps"][tm < 2.0] == 0.0).all()
+    assert np.allclose(od["reported_mps"], np.round(true + od["wheel_error_mps"], 3), atol=1e-9)
+
+
 def test_slide_only_inside_the_low_adhesion_window():
     text = SLIDE.replace("slip_period_s = 0.5", "slip_period_s = 0.5\nlow_adhesion_end_s = 6.0")
     t, v = speeds(sim_of(text))

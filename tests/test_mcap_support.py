@@ -7,7 +7,6 @@ mismatch elsewhere.
 
 from __future__ import annotations
 
-import io
 import math
 from collections import Counter
 from collections.abc import Sequence
@@ -18,7 +17,8 @@ import numpy as np
 
 from bench.config import Config
 from bench.pipeline.steps import Pipeline, StepOutput
-from bench.records.results import RESULT_DTYPE, CsvWriter
+from bench.records.results import RESULT_DTYPE
+from bench.sinks.tables import results_csv_text
 from devices.base import SourceBatch, SourceNotice
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
@@ -41,11 +41,7 @@ class Stream:
 
 def csv_text(results: np.ndarray) -> str:
     """Results as the CSV `bench replay --csv` writes (the text two runs must agree on)."""
-    buf = io.StringIO()
-    w = CsvWriter(buf)
-    w.write(results)
-    w.close()
-    return buf.getvalue()
+    return results_csv_text(results)
 
 
 def _us(t: float) -> float:

@@ -15,8 +15,8 @@ from bench.live.session import Session, wait_until
 from bench.live.setup import LiveSetup
 from bench.replay.player import ReplaySource, ReplayTap
 from bench.replay.run import replay
-from bench.tui.app import BenchApp
 from bench.tui.panels.pairs import PairsPanel
+from bench.tui.replay_app import ReplayApp
 from tests.test_tui_app import SIZE, wait_for
 from tests.test_tui_support import ListFile, make_frames, screen_text
 
@@ -106,13 +106,13 @@ def test_replay_keys_in_the_app() -> None:
     )
 
     async def run() -> None:
-        app = BenchApp(session, poll_hz=8)
+        app = ReplayApp(session, poll_hz=8)
         session.start()
         async with app.run_test(size=SIZE) as pilot:
             # the footer is drawn after the first refresh, which a loaded machine delays
             await wait_for(pilot, lambda: "spc Play" in screen_text(app).splitlines()[-1])
             footer = screen_text(app).splitlines()[-1]
-            for key in ("spc Play", "s Speed", "n Step", "j Next fail"):
+            for key in ("spc Play", "s Speed", "n Step", "j Next", "t Target", "b Back"):
                 assert key in footer
             await pilot.press("j")
             await wait_for(pilot, lambda: app.cursor_n == 300)

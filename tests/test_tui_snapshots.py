@@ -83,3 +83,20 @@ def test_states_are_what_the_pictures_claim() -> None:
     ):
         row = make().results[-1]
         assert row["votes"].tolist() == votes, make.__name__
+
+
+@pytest.mark.parametrize(
+    ("keys", "size"),
+    [(("question_mark",), SIZE), (("p",), SIZE), ((), (90, 28))],
+    ids=["help", "paused", "too-small"],
+)
+def test_screen_states(snap_compare: object, keys: tuple[str, ...], size: tuple[int, int]) -> None:
+    """The help over the screen, the paused title, the too-small notice."""
+    snap = valid()
+    app = BenchApp(Session(runner=None, fixed=snap), poll_hz=0)
+
+    async def show(pilot: object) -> None:
+        app.apply_snapshot(snap)
+        await pilot.pause()  # type: ignore[attr-defined]
+
+    assert snap_compare(app, terminal_size=size, press=keys, run_before=show)  # type: ignore[operator]

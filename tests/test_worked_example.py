@@ -65,11 +65,12 @@ def test_worked_example_row_through_frames_file_replay_and_csv(tmp_path, row):
     got = _case(tmp_path, row)
     expected = float(row["pair_gradient_permil"])
     # the table's inputs carry 12 decimals; near level track that alone allows ~1e-3 permil
-    assert float(got["g12"]) == pytest.approx(expected, abs=2e-3)
-    assert float(got["a1"]) == pytest.approx(float(row["a1_mps2"]), abs=1e-12)
-    assert float(got["a2"]) == pytest.approx(float(row["a2_mps2"]), abs=1e-12)
+    assert float(got["g12_permil"]) == pytest.approx(expected, abs=2e-3)
+    assert float(got["a1_mps2"]) == pytest.approx(float(row["a1_mps2"]), abs=1e-12)
+    assert float(got["a2_mps2"]) == pytest.approx(float(row["a2_mps2"]), abs=1e-12)
     assert got["valid"] == "1"
-    assert float(got["gradient"]) == pytest.approx(float(row["true_gradient_permil"]), abs=2e-3)
+    expected_gradient = float(row["true_gradient_permil"])
+    assert float(got["gradient_permil"]) == pytest.approx(expected_gradient, abs=2e-3)
 
 
 def test_rounding_inputs_to_a_printed_table_costs_per_mille_near_level(tmp_path):
@@ -81,4 +82,4 @@ def test_rounding_inputs_to_a_printed_table_costs_per_mille_near_level(tmp_path)
     row["a1_mps2"] = f"{round(float(row['a1_mps2']), 4)}"
     row["a2_mps2"] = f"{round(float(row['a2_mps2']), 4)}"
     got = _case(tmp_path, row)
-    assert float(got["g12"]) == pytest.approx(3.22, abs=0.01)
+    assert float(got["g12_permil"]) == pytest.approx(3.22, abs=0.01)

@@ -16,6 +16,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from bench.errors import BenchError
+from bench.sinks.paths import check_output_dir, describe_os_error
 
 if TYPE_CHECKING:
     from bench.acceptance.outcome import RunOutcome
@@ -156,8 +157,14 @@ def run(args: argparse.Namespace) -> int:
         plots=not args.no_plots,
         context=run_context(args, plan),
     )
+    check_output_dir(args.out, "acceptance results")
     err.print(f"bench: acceptance plan {plan.name}: {plan.title}", highlight=False)
-    outcome = run_plan(plan, opts)
+    try:
+        outcome = run_plan(plan, opts)
+    except OSError as exc:  # a full disk or a vanished folder: an error, not a fail verdict
+        where = exc.filename or args.out
+        why = describe_os_error(exc)  # exit 2; a half-written junit.xml is not valid XML
+        raise BenchError(f"{where}: cannot write the acceptance results: {why}") from None
     print_outcome(outcome, console)
     if outcome.error:
         print(f"bench: error: {outcome.error}", file=sys.stderr)

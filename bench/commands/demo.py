@@ -14,6 +14,7 @@ from pathlib import Path
 import devices
 from bench.config_choice import announce, live_config, scenario_config
 from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
+from bench.mcaplog.foxglove_stream import add_foxglove_arguments
 
 __all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
 
@@ -42,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--config", help="calibration config (TOML); default: the scenario board's calibration"
     )
     add_log_arguments(p)
+    add_foxglove_arguments(p)
     p.set_defaults(func=run)
 
 

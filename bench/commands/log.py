@@ -1,14 +1,15 @@
-"""``bench log info FILE`` and ``bench log export FILE --csv OUT | --candump OUT``.
+"""``bench log info FILE`` and ``bench log export FILE --csv OUT | --parquet OUT | --candump OUT``.
 
 info: duration, frames per ID and outcome, link errors, vote-failure and invalid spans,
-metadata (docs/MCAP.md). export --csv: the recorded results as the replay CSV (or, with
---recompute or when the file holds no results, fusion re-run on the raw frames);
-export --candump: the raw frames as a candump -L text log.
+metadata (docs/MCAP.md). export --csv/--parquet: the recorded results as the replay's CSV or
+Parquet file (or, with --recompute or when the file holds no results, fusion re-run on the
+raw frames); export --candump: the raw frames as a candump -L text log.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import sys
@@ -18,7 +19,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from bench.errors import BenchError
+from bench.sinks.paths import check_output_file, write_error
 
 
 def register(subparsers: Any) -> None:
@@ -40,17 +41,22 @@ def register(subparsers: Any) -> None:
     )
     info.set_defaults(func=run_info)
 
-    exp = sub.add_parser("export", help="convert a log to the replay CSV or a candump text log")
+    exp = sub.add_parser(
+        "export", help="convert a log to the replay CSV, Parquet or a candump text log"
+    )
     exp.add_argument("file", type=Path, help="an MCAP file written by the bench")
     out = exp.add_mutually_exclusive_group(required=True)
     out.add_argument("--csv", metavar="OUT", help="results as the replay CSV ('-' = stdout)")
+    out.add_argument(
+        "--parquet", metavar="OUT", help="results as the replay's Parquet file (zstd, units)"
+    )
     out.add_argument(
         "--candump", metavar="OUT", help="raw frames as candump -L text ('-' = stdout)"
     )
     exp.add_argument(
         "--recompute",
         action="store_true",
-        help="with --csv: re-run fusion on the raw frames, not the recorded results",
+        help="with --csv/--parquet: re-run fusion on the raw frames, not the recorded results",
     )
     exp.add_argument(
         "--config", type=Path, help="with --recompute: config to use (default: the recorded one)"
@@ -80,19 +86,30 @@ def _open_out(stack: ExitStack, target: str) -> TextIO:
     try:
         return stack.enter_context(open(target, "w", newline="", encoding="utf-8"))
     except OSError as exc:
-        raise BenchError(f"{target}: cannot write: {exc.strerror or exc}") from None
+        raise write_error(target, exc) from None
 
 
 def run_export(args: argparse.Namespace) -> int:
     from bench.mcaplog.reader import McapLog
 
+    target = args.candump or args.csv or args.parquet
+    what = "candump log" if args.candump else "CSV" if args.csv else "Parquet file"
+    check_output_file(target, what)  # before reading anything
     with McapLog(args.file) as lg, ExitStack() as stack:
         if lg.truncated:
             print(f"bench: warning: {lg.truncation}", file=sys.stderr)
         if args.candump:
             fh = _open_out(stack, args.candump)
             frames, errors, _ = lg.read_frames()
-            written, no_time = write_candump(frames, fh)
+            try:
+                written, no_time = write_candump(frames, fh)
+                fh.flush()
+                if fh is not sys.stdout:
+                    stack.close()  # the last bytes reach the disk here, and can fail here
+            except OSError as exc:
+                if isinstance(exc, BrokenPipeError):
+                    raise
+                raise write_error(args.candump, exc) from None
             print(f"bench: exported {written} frames to {args.candump}", file=sys.stderr)
             if no_time:
                 print(
@@ -106,9 +123,11 @@ def run_export(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
             return 0
-        fh = _open_out(stack, args.csv)
-        rows = export_csv(lg, fh, recompute=args.recompute, config_path=args.config)
-        print(f"bench: exported {rows} result rows to {args.csv}", file=sys.stderr)
+        rows = export_results(
+            lg, target, parquet=bool(args.parquet), recompute=args.recompute,
+            config_path=args.config,
+        )  # fmt: skip
+        print(f"bench: exported {rows} result rows to {target}", file=sys.stderr)
     return 0
 
 
@@ -149,36 +168,51 @@ def write_candump(frames: np.ndarray, fh: TextIO) -> tuple[int, int]:
     return len(lines), no_time
 
 
-def export_csv(
-    lg: Any, fh: TextIO, *, recompute: bool = False, config_path: Path | None = None
+def export_results(
+    lg: Any,
+    target: str,
+    *,
+    parquet: bool = False,
+    recompute: bool = False,
+    config_path: Path | None = None,
 ) -> int:
-    """Write the replay CSV: recorded results, or fusion recomputed from the raw frames."""
+    """Write the replay's CSV or Parquet file: recorded results, or fusion recomputed from the
+    raw frames. Returns the rows written; a write failure is a one-line BenchError."""
     from bench.config import load_config
     from bench.mcaplog.recorded import read_results, recorded_config
-    from bench.mcaplog.source import McapFrameSource
     from bench.pipeline.steps import Pipeline
-    from bench.records.results import CsvWriter
+    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 
-    writer = CsvWriter(fh)
-    if not recompute:
-        results = read_results(lg)
-        if len(results):
-            writer.write(results)
-            writer.close()
-            return writer.rows
+    config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
+    results = None if recompute else read_results(lg)
+    if results is not None and not len(results):
+        results = None
         print(
             "bench: note: no results recorded in this file; recomputing from the raw frames",
             file=sys.stderr,
         )
-    config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
-    print(f"bench: {config.announcement()}", file=sys.stderr)
-    pipe = Pipeline(config)
-    source = McapFrameSource(lg.path)
+    if parquet:
+        sink = parquet_sink(target, results_metadata(config, str(lg.path)))
+    else:
+        sink = csv_sink(target)
     try:
-        for batch in source.batches():
-            writer.write(pipe.process(batch).results)
-        writer.write(pipe.finish().results)
-    finally:
-        source.close()
-    writer.close()
-    return writer.rows
+        if results is not None:
+            sink.put(results)
+        else:
+            from bench.mcaplog.source import McapFrameSource
+
+            print(f"bench: {config.announcement()}", file=sys.stderr)
+            pipe = Pipeline(config)
+            source = McapFrameSource(lg.path)
+            try:
+                for batch in source.batches():
+                    sink.put(pipe.process(batch).results)
+                sink.put(pipe.finish().results)
+            finally:
+                source.close()
+    except BaseException:
+        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
+            sink.close()
+        raise
+    sink.close()
+    return sink.rows

@@ -1,8 +1,9 @@
-"""`bench replay INPUT`: re-run fusion over a recorded log, write the per-sample CSV."""
+"""`bench replay INPUT`: re-run fusion over a recorded log, write the per-sample CSV/Parquet."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from typing import Any
 
@@ -20,7 +21,7 @@ from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.replay.run import replay
-from bench.sinks.csv import CsvSink
+from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
 
 MAX_NOTICES = 20
@@ -46,6 +47,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--csv", metavar="OUT", help="write the per-sample results here ('-' for stdout)"
     )
     p.add_argument(
+        "--parquet",
+        metavar="OUT",
+        help="write the per-sample results as Parquet (zstd; units and calibration in the schema)",
+    )
+    p.add_argument(
         "--compare",
         action="store_true",
         help="(MCAP input) would this run have passed with --config? One table: validity "
@@ -64,8 +70,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.replay.sources import open_replay
+    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 
     console = Console(stderr=True)
+    if args.csv:
+        check_output_file(args.csv, "CSV")
+    if args.parquet:
+        check_output_file(args.parquet, "Parquet file")
     if args.plan and not args.compare:
         raise BenchError("--plan judges a plan's checks both ways: it needs --compare")
     if args.compare and not str(args.input).lower().endswith(".mcap"):
@@ -83,8 +94,15 @@ def run(args: argparse.Namespace) -> int:
         if hint:
             print(f"bench: {hint}", file=sys.stderr)
     sinks = []
-    if args.csv:
-        sinks.append(CsvSink(sys.stdout if args.csv == "-" else args.csv))  # type: ignore[arg-type]
+    try:
+        if args.csv:
+            sinks.append(csv_sink(args.csv))
+        if args.parquet:
+            sinks.append(parquet_sink(args.parquet, results_metadata(config, args.input)))
+    except BaseException:
+        _close_all(sinks)
+        source.close()
+        raise
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
     collect = bool(args.compare)
@@ -108,9 +126,13 @@ def run(args: argparse.Namespace) -> int:
                 )
         else:
             outcome = replay(source, config, sinks, collect=collect)
-    finally:
+    except BaseException:
+        _close_all(sinks)  # the first failure is the one to tell
+        raise
+    else:
         for sink in sinks:
-            sink.close()
+            sink.close()  # raises a write failure as a one-line error
+    finally:
         source.close()
     shown = outcome.notices[:MAX_NOTICES]
     for notice in shown:
@@ -123,6 +145,13 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         return _compare(args, config, outcome.results, plan, Console())
     return 0
+
+
+def _close_all(sinks: list) -> None:
+    """Close the sinks after another failure, keeping quiet about their own."""
+    for sink in sinks:
+        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
+            sink.close()
 
 
 def _compare(

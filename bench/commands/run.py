@@ -15,7 +15,8 @@ from bench.config_choice import announce, live_config
 from bench.errors import BenchError
 from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
-from bench.sinks.csv import CsvSink
+from bench.mcaplog.foxglove_stream import open_stream
+from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
 
 
@@ -52,6 +53,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     rec = ""
     if s.recording:
         rec = f" log {s.recording.get('frames', 0)}f"
+    if s.output_errors:  # a secondary output (the CSV, the live stream) has failed
+        rec += " CSV FAILED" if any("CSV" in e for e in s.output_errors) else " OUTPUT FAILED"
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
@@ -73,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
 
     old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
+        if args.csv:
+            check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
         config = live_config(args.config, getattr(args, "emulate", None))
         setup = open_live(args)
     except BaseException:
@@ -95,7 +100,28 @@ def run(args: argparse.Namespace) -> int:
         sinks.append(recording)
         print(f"bench: logging to {recording.path}", file=sys.stderr)
     if args.csv:
-        sinks.append(CsvSink(args.csv))
+        from bench.sinks.tables import csv_sink
+
+        try:
+            sinks.append(csv_sink(args.csv, live=True))
+        except BaseException:
+            for sink in sinks:
+                sink.close()
+            setup.close()
+            for sig, handler in old_handlers.items():
+                signal.signal(sig, handler)
+            raise
+    try:
+        stream = open_stream(args, config, lambda m: print(f"bench: {m}", file=sys.stderr))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        setup.close()
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        raise
+    if stream is not None:
+        sinks.append(stream)  # fed like the log: the processing thread only enqueues
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()
@@ -154,4 +180,19 @@ def _report(
         print(f"bench: log written: {recording.path}", file=sys.stderr)
     if runner.error:
         print(f"bench: error: {runner.error}", file=sys.stderr)
-    return 1 if (runner.error or log_error) else 0
+    for line in runner.output_errors:
+        print(f"bench: error: {line}", file=sys.stderr)
+    for sink in runner_sinks(runner):
+        if getattr(sink, "rows_lost", 0):
+            print(
+                f"bench: error: {sink.path}: {sink.rows_lost} result rows not written "
+                f"({sink.rows} written)",
+                file=sys.stderr,
+            )
+    lost = any(getattr(s, "rows_lost", 0) for s in runner_sinks(runner))
+    return 1 if (runner.error or log_error or runner.output_errors or lost) else 0
+
+
+def runner_sinks(runner: LiveRunner) -> list[Any]:
+    """The run's secondary outputs (what is not the MCAP recording)."""
+    return [s for s in runner.sinks if s is not runner.recording]

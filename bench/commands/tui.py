@@ -54,17 +54,53 @@ def run(args: argparse.Namespace) -> int:
     hint = replay_hint(config, args.replay) if args.replay else None
     if hint:
         say(hint)
+    if args.replay:
+        return show(session, **replay_extras(args, config, log_dir))
     return show(session)
 
 
-def show(session: Any) -> int:
+def show(session: Any, **app_kwargs: Any) -> int:
     """The screen on a built session; the logs written are listed however it ends."""
     from bench.tui.run import run_tui
 
     try:
-        return run_tui(session)
+        return run_tui(session, **app_kwargs)
     finally:
         report(session)
+
+
+def replay_extras(args: argparse.Namespace, config: Config, log_dir: Path) -> dict[str, Any]:
+    """What the replay screen needs beyond the session: a factory for a new session on the
+    same log (restart, seek back; never recording unless r is pressed), and the operator
+    marks the log recorded (an MCAP file), for "run to the next mark"."""
+    from bench.live.session import live_session, replay_setup
+
+    def restart(paused: bool) -> Any:
+        speed = SPEED_CHOICES[args.speed]
+        return live_session(
+            replay_setup(args.replay, config, speed=speed, paused=paused), config, None, log_dir
+        )
+
+    return {"restart": restart, "recorded_marks": recorded_marks(Path(args.replay))}
+
+
+def recorded_marks(path: Path) -> list[tuple[float, str]]:
+    """(log time, text) of the operator marks in an MCAP log; none for other formats or a
+    file whose event record cannot be read (the replay itself reports that)."""
+    if path.suffix.lower() != ".mcap":
+        return []
+    from bench.mcaplog.recorded import read_events
+    from bench.records.events import EventKind
+
+    try:
+        events = read_events(path)
+    except Exception:
+        return []
+    return [
+        (float(e["t"]), str(e.get("text") or e.get("message", "mark")))
+        for e in events
+        if e.get("kind") == EventKind.MARK and isinstance(e.get("t"), int | float)
+    ]
 
 
 def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:

@@ -49,7 +49,22 @@ class EnginePlan:
         except BaseException:
             setup.close()
             raise
-        return live_session(setup, self.config, first, self.log_dir, record=self.record)
+        session = live_session(setup, self.config, first, self.log_dir, record=self.record)
+        try:
+            extra = self.open_extra_sinks(warn)
+        except BaseException:
+            session.stop()
+            raise
+        for sink in extra:
+            session.runner.add_sink(sink)
+        return session
+
+    def open_extra_sinks(self, warn: Callable[[str], None]) -> list[Any]:
+        """Sinks beside the recording, e.g. the live Foxglove stream (``--foxglove``)."""
+        from bench.mcaplog.foxglove_stream import open_stream
+
+        stream = open_stream(getattr(self, "args", None), self.config, warn)
+        return [stream] if stream is not None else []
 
     def started(self, session: Any) -> None:
         """Called once the runner runs."""

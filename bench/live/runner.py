@@ -123,6 +123,7 @@ class Snapshot:
     error: str | None = None
     marks: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    output_errors: list[str] = field(default_factory=list)  # failed secondary outputs (CSV)
 
 
 class LiveRunner:
@@ -152,6 +153,9 @@ class LiveRunner:
         self.frames_dropped = 0
         self.marks = 0
         self.error: str | None = None
+        self.output_errors: list[str] = []  # one line per failed secondary output
+        self._failed: set[int] = set()  # id() of the sinks that failed
+        self._carry_events: list[np.ndarray] = []  # output failures, for the next step
         self.finished = threading.Event()
         self.recording: Any = None  # the MCAP sink, when recording
         self.cpus = live_cpus()  # both threads on one CPU: they share a GIL (cpu_placement)
@@ -174,6 +178,11 @@ class LiveRunner:
 
     def wait(self, timeout: float | None = None) -> bool:
         return self.finished.wait(timeout)
+
+    @property
+    def sinks(self) -> list[Sink]:
+        with self._lock:
+            return list(self._sinks)
 
     def add_sink(self, sink: Sink) -> None:
         with self._lock:
@@ -251,19 +260,41 @@ class LiveRunner:
         finally:
             with self._lock:
                 sinks = list(self._sinks)
+            # secondary outputs first: a failure they find while finishing (the last rows,
+            # a full disk) still reaches the MCAP log as an event
+            sinks.sort(key=lambda s: s is self.recording)
             for sink in sinks:
+                if sink is self.recording and self._carry_events:
+                    with contextlib.suppress(Exception):
+                        sink.write(StepOutput(events=np.concatenate(self._carry_events)))
+                    self._carry_events = []
                 try:
                     sink.close()
                 except Exception as exc:  # a failing sink must not hide the others
                     self.error = f"closing {type(sink).__name__} failed: {exc!r}"
+                error = getattr(sink, "error", None)
+                if error and id(sink) not in self._failed and sink is not self.recording:
+                    self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
             self.finished.set()
 
     def _deliver(self, step: StepOutput) -> None:
         now = time.time()
         with self._lock:
             sinks = list(self._sinks)
+        if self._carry_events:  # told in the step after the failure: the MCAP logs it too
+            step.events = np.concatenate([step.events, *self._carry_events])
+            self._carry_events = []
         for sink in sinks:
-            sink.write(step)
+            if id(sink) in self._failed and getattr(sink, "error", None) is None:
+                continue  # it raised: not asked again
+            try:
+                sink.write(step)
+            except Exception as exc:  # a secondary output must not stop the run
+                self._output_failed(sink, f"{type(sink).__name__} failed: {exc!r}", 0)
+                continue
+            error = getattr(sink, "error", None)
+            if error and id(sink) not in self._failed and sink is not self.recording:
+                self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
         res = step.results
         with self._lock:
             if len(res):
@@ -271,6 +302,16 @@ class LiveRunner:
                 self._latency.extend(now - res["t"])
             for ev in step.events[-200:]:
                 self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
+
+    def _output_failed(self, sink: Sink, text: str, errno: int) -> None:
+        """A secondary output failed: a loud event, a line for the status and the exit code;
+        the pipeline, the MCAP log and the other outputs go on."""
+        self._failed.add(id(sink))
+        t = time.time()
+        self._carry_events.append(make_events(EventKind.OUTPUT_ERROR, t, 0, -1, errno))
+        with self._lock:
+            self.output_errors.append(text)
+            self._events.append((t, int(EventKind.OUTPUT_ERROR), f"OUTPUT_ERROR {text}"))
 
     # -- snapshot --------------------------------------------------------------------------
     def snapshot(self, last: int = HISTORY) -> Snapshot:
@@ -301,4 +342,5 @@ class LiveRunner:
             recording=rec,
             error=self.error,
             marks=self.marks,
+            output_errors=list(self.output_errors),
         )

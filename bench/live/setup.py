@@ -52,6 +52,7 @@ class LiveSetup:
 
 
 def add_live_arguments(parser: argparse.ArgumentParser, *, emulate_required: bool = False) -> None:
+    from bench.mcaplog.foxglove_stream import add_foxglove_arguments
     from devices.cli_args import add_source_arguments
 
     add_source_arguments(parser)
@@ -67,6 +68,7 @@ def add_live_arguments(parser: argparse.ArgumentParser, *, emulate_required: boo
         "else the ICD's nominal values",
     )
     add_log_arguments(parser)
+    add_foxglove_arguments(parser)
 
 
 def add_log_arguments(parser: argparse.ArgumentParser) -> None:

@@ -119,8 +119,7 @@ class McapSink(QueuedSink):
         self._file: McapFile | None = None
         self._enc: MessageEncoder | None = None
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = McapFile(self.path, chunk_size=chunk_size, compression=compression)
+            self._file = self._open_file(chunk_size, compression)
             self._file.add_metadata("run", run_record(metadata))
             self._file.add_metadata("config", config_record(config))
             now = time.time_ns()
@@ -141,6 +140,12 @@ class McapSink(QueuedSink):
     def close(self) -> None:
         """Drain the queue, write the summary and close the file (idempotent)."""
         self._stop_thread()
+
+    def _open_file(self, chunk_size: int, compression: str) -> McapFile:
+        """Where the messages go: a new MCAP file (the live Foxglove stream,
+        :mod:`bench.mcaplog.foxglove_ws`, puts a WebSocket server here instead)."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        return McapFile(self.path, chunk_size=chunk_size, compression=compression)
 
     # -- writer thread ---------------------------------------------------------------------
     def fail(self, exc: BaseException) -> None:

@@ -131,7 +131,21 @@ def _writer_status(sink: McapSink) -> dict[str, Any]:
         "frames_lost": sink.frames_lost,
         "errors": sink.errors,
         "error": sink.error,
+        "port": getattr(sink, "port", None),
     }
+
+
+def _make_sink(
+    path: str, config: Config, metadata: Any, attachments: Any, options: dict[str, Any]
+) -> McapSink:
+    """The sink the writer process runs: the MCAP file, or (``sink="foxglove"``) the live
+    Foxglove stream, which is the same code writing to a WebSocket server."""
+    kind = options.pop("sink", "mcap")
+    if kind == "foxglove":
+        from bench.mcaplog.foxglove_ws import foxglove_sink_class
+
+        return foxglove_sink_class()(config, metadata, attachments, threaded=False, **options)  # type: ignore[no-any-return]
+    return McapSink(path, config, metadata, attachments, threaded=False, **options)
 
 
 def _start_writer() -> tuple[Connection, subprocess.Popen[bytes]]:
@@ -180,7 +194,7 @@ def _writer_main(conn: Connection) -> None:
         path, config, metadata, attachments, options = conn.recv()
     except (EOFError, OSError):
         return
-    sink = McapSink(path, config, metadata, attachments, threaded=False, **options)
+    sink = _make_sink(path, config, metadata, attachments, options)
     with contextlib.suppress(OSError):
         conn.send(("status", _writer_status(sink)))
     group_s = WRITER_GROUP_S
@@ -241,6 +255,7 @@ class McapProcessSink(QueuedSink):
     ) -> None:
         super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
         self.frames_sent = 0  # frames handed to the writer process
+        self.port: int | None = None  # a live Foxglove stream's port (from the writer)
         options = dict(options, flush_interval_s=flush_interval_s)
         self._conn, self._proc = _start_writer()
         self._gone = False
@@ -274,6 +289,8 @@ class McapProcessSink(QueuedSink):
         self._take_replies(0.0)
 
     def _take(self, status: dict[str, Any]) -> None:
+        if status.get("port") is not None:
+            self.port = int(status["port"])  # the live stream's bound port
         self.frames_logged = int(status["frames_logged"])
         self.bytes_written = int(status["bytes_written"])
         self.frames_lost = max(self.frames_lost, int(status["frames_lost"]))

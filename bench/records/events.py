@@ -33,7 +33,8 @@ class EventKind(IntEnum):
     BOARD_STATE = 19  # value = new board state
     LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
     DROPPED = 21  # value = frames dropped by a full queue
-    SOCKET_OVERFLOW = 22  # value = frames the kernel dropped at a full socket receive buffer
+    OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
+    SOCKET_OVERFLOW = 23  # value = frames the kernel dropped at a full socket receive buffer
 
 
 EVENT_DTYPE = np.dtype(
@@ -169,6 +170,10 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
     elif kind is EventKind.SOCKET_OVERFLOW:
         parts.append(f"{value} frames dropped by the kernel (socket receive buffer full)")
+    elif kind is EventKind.OUTPUT_ERROR:
+        import os
+
+        parts.append(os.strerror(value) if value > 0 else "write failed")
     elif kind is EventKind.LINK_ERROR:
         from protocol.layout import Outcome
 

@@ -43,11 +43,40 @@ def speed_label(speed: float | None) -> str:
 
 @dataclass
 class Failure:
-    """Where a seek stopped: the first VOTE_FAIL event after the seek began."""
+    """Where a seek stopped: the first event of the kinds sought after the seek began (or
+    the first sample at or after the log time sought)."""
 
     t: float
     n: int
     text: str
+
+
+FAULT_KINDS = frozenset(
+    {
+        EventKind.CRC_ERROR,
+        EventKind.WRONG_DLC,
+        EventKind.DUPLICATE,
+        EventKind.LATE,
+        EventKind.GAP,
+        EventKind.SAMPLES_LOST,
+        EventKind.COUNTER_JUMP,
+        EventKind.STATUS_FLAG,
+        EventKind.LINK_ERROR,
+        EventKind.PARSE_ERROR,
+        EventKind.DISCONNECT,
+    }
+)
+"""What "the next fault" means: anything wrong on the bus, a channel or the link."""
+
+SEEK_TARGETS: tuple[tuple[str, frozenset[int]], ...] = (
+    ("vote failure", frozenset({EventKind.VOTE_FAIL})),
+    ("INVALID", frozenset({EventKind.INVALID})),
+    ("exclusion", frozenset({EventKind.EXCLUDED})),
+    ("fault", FAULT_KINDS),
+    ("mark", frozenset({EventKind.MARK})),
+)
+"""What ``j`` can run to (``t`` cycles through them). Marks come from the log's own event
+record (an MCAP file), not from fusion: the seek runs to the next recorded mark's time."""
 
 
 @dataclass
@@ -116,6 +145,8 @@ class ReplaySource(LiveSource):
         self._anchor: tuple[float, float] | None = None  # (clock, log time) pacing reference
         self._step_target = math.nan  # while paused: hand out frames up to this log time
         self._seeking = False
+        self._seek_kinds: frozenset[int] = frozenset({EventKind.VOTE_FAIL})
+        self._seek_until = math.nan  # log time a seek runs to (NaN: run to an event)
         self.failure: Failure | None = None
         self._notes: list[str] = []
 
@@ -175,8 +206,26 @@ class ReplaySource(LiveSource):
 
     def seek_failure(self) -> None:
         """Run as fast as possible until the pipeline reports a vote failure, then pause."""
+        self.seek_event(frozenset({EventKind.VOTE_FAIL}))
+
+    def seek_event(self, kinds: frozenset[int]) -> None:
+        """Run as fast as possible until the pipeline reports an event of ``kinds``, then
+        pause there."""
         with self._cond:
             self.failure = None
+            self._seek_kinds = frozenset(int(k) for k in kinds)
+            self._seek_until = math.nan
+            self._seeking = True
+            self._paused = False
+            self._cond.notify_all()
+
+    def seek_time(self, log_t: float) -> None:
+        """Run as fast as possible until the pipeline has fused the sample at log time
+        ``log_t`` (seconds, the log's clock), then pause there."""
+        with self._cond:
+            self.failure = None
+            self._seek_kinds = frozenset()
+            self._seek_until = float(log_t)
             self._seeking = True
             self._paused = False
             self._cond.notify_all()
@@ -184,6 +233,14 @@ class ReplaySource(LiveSource):
     @property
     def seeking(self) -> bool:
         return self._seeking
+
+    @property
+    def seek_kinds(self) -> frozenset[int]:
+        return self._seek_kinds
+
+    @property
+    def seek_until(self) -> float:
+        return self._seek_until
 
     @property
     def finished(self) -> bool:
@@ -369,14 +426,23 @@ class ReplayTap:
         self.batches = 0
 
     def write(self, step: StepOutput) -> None:
+        source = self.source
         if len(step.events):
             kinds = step.events["kind"]
             self.dropped += int(step.events["value"][kinds == EventKind.DROPPED].sum())
-            if self.source.seeking:
-                fails = step.events[kinds == EventKind.VOTE_FAIL]
-                if len(fails):
-                    ev = fails[0]
-                    self.source.failure_found(Failure(float(ev["t"]), int(ev["n"]), describe(ev)))
+            if source.seeking and source.seek_kinds:
+                hits = step.events[np.isin(kinds, list(source.seek_kinds))]
+                if len(hits):
+                    ev = hits[0]
+                    source.failure_found(Failure(float(ev["t"]), int(ev["n"]), describe(ev)))
+        until = source.seek_until
+        if source.seeking and math.isfinite(until) and len(step.results):
+            t = step.results["t"]
+            due = np.flatnonzero(t >= until)
+            if len(due):
+                k = int(due[0])
+                n = int(step.results["n"][k])
+                source.failure_found(Failure(float(t[k]), n, f"sample {n}"))
         if step.batch is not None:
             self.batches += 1
             self.source.consumed_to(step.seq0 + len(step.frames) + self.dropped, self.batches)

@@ -14,7 +14,9 @@ import math
 import os
 import signal
 import threading
+import time
 from collections.abc import Iterable
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -31,17 +33,19 @@ from bench.errors import BenchError
 from bench.live.runner import HISTORY, Snapshot
 from bench.live.session import Session
 from bench.replay.player import ReplayStatus, speed_label
+from bench.tui.help import HelpScreen
 from bench.tui.messages import SessionStopped, SnapshotReady
 from bench.tui.panels import duration_text
 from bench.tui.panels.board import BoardPanel
 from bench.tui.panels.channels import ChannelsPanel, RateMeter
-from bench.tui.panels.events import EventsPanel
+from bench.tui.panels.events import EventsPanel, MarksPanel, kind_name
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.panels.plot import (
     WINDOWS_S,
     GradientPlot,
     Plot,
     PlotPacer,
+    legend_markup,
     prepare_series,
     render_plot,
 )
@@ -51,7 +55,29 @@ TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 """What + and - step through (per mille): fine where the vote is touchy, coarse above."""
 
 WIDE_COLUMNS = 140
+MIN_SIZE = (100, 30)
+"""Below this the panels would be cropped: the screen says so instead."""
 REPLAY_ACTIONS = {"play_pause", "speed", "step", "next_failure"}
+KEY_HELP = {
+    "quit": "quit: stop, finish the MCAP log, leave",
+    "pause_display": "freeze the panels (acquisition and logging go on)",
+    "record": "recording off / on (a new MCAP file each time)",
+    "mark": "operator mark, into the log and the Marks list",
+    "tolerance": "vote tolerance up / down the ladder",
+    "window": "plot window 10 s / 30 s / 1 min / 5 min",
+    "filter_events": "Events: one kind only, cycling through the kinds seen; all",
+    "help": "this help",
+    "play_pause": "replay: play / pause",
+    "speed": "replay speed 1x / 10x / max",
+    "step": "replay: one sample on",
+    "next_failure": "replay: run to the next event of the target (t), pause there",
+    "seek_target": "replay: what j runs to: vote failure, INVALID, exclusion, fault, mark",
+    "back": "replay: back 10 s of log time (computed again from the start)",
+    "restart": "replay: play the log again from the start",
+}
+"""What the help screen says for each action (the footer's labels are kept short)."""
+SCREENSHOT_DIR = Path("logs")
+"""Where the palette's Screenshot saves its SVG (beside the run's logs, not ~/Downloads)."""
 
 
 def plot_size(plot: Text) -> tuple[int, int]:
@@ -81,12 +107,12 @@ class BenchApp(App[int]):
         Binding("m", "mark", "Mark"),
         Binding("plus,equals_sign", "tolerance(1)", "Tol+", key_display="+"),
         Binding("minus", "tolerance(-1)", "Tol-", key_display="-"),
-        Binding("w", "window", "Window", show=False),
-        Binding("space", "play_pause", "Play", key_display="spc"),
-        Binding("s", "speed", "Speed"),
-        Binding("n", "step", "Step"),
-        Binding("j", "next_failure", "Next fail"),
+        Binding("w", "window", "Window"),
+        Binding("f", "filter_events", "Filter"),
+        Binding("question_mark", "help", "Help", key_display="?"),
+        Binding("escape", "escape", "Close", show=False),
     ]
+    """The live keys; :class:`bench.tui.replay_app.ReplayApp` adds the replay keys."""
 
     def __init__(
         self,
@@ -116,25 +142,34 @@ class BenchApp(App[int]):
         self._failure_seen: object = None
         self.stop_error: str | None = None
         self.marks = 0  # operator marks (the runner also counts tolerance changes as marks)
+        self.seek_label = "vote failure"  # what a replay's seek runs to (status bar)
 
     # -- layout ---------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
         yield Static(id="status-bar")
+        yield Static(id="too-small")
         with Horizontal(id="top"):
             yield PairsPanel(id="pairs", classes="panel")
             yield ChannelsPanel(id="channels", classes="panel")
+        with Horizontal(id="middle"):
+            yield GradientPlot(id="plot", classes="panel")
+            yield BoardPanel(id="board", classes="panel")
         with Horizontal(id="bottom"):
-            with Vertical(id="left"):
-                yield GradientPlot(id="plot", classes="panel")
-                yield EventsPanel(id="events", classes="panel")
-            with Vertical(id="right"):
-                yield BoardPanel(id="board", classes="panel")
+            marks = MarksPanel(id="marks", classes="panel")
+            yield EventsPanel(marks, id="events", classes="panel")
+            with Vertical(id="side"):
                 yield RecordingPanel(id="recording", classes="panel")
+                yield marks
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
         self.query_one("#plot").border_title = self._plot_title()
         self.query_one("#plot").border_subtitle = "w: window"
+        if self.session.mode == "replay":
+            for table in self.query(EventsPanel), self.query(MarksPanel):
+                for widget in table:
+                    widget.set_clock("log time, UTC")
+        self.on_resize()
         self._update_status_bar()
         if self.poll_hz > 0:
             self.set_interval(1.0 / self.poll_hz, self.poll)
@@ -155,8 +190,20 @@ class BenchApp(App[int]):
         self.call_later(self.action_quit)
 
     def on_resize(self) -> None:
-        """Wide terminals: let the per-pair panel and the plot share the width evenly."""
-        self.screen.set_class(self.size.width >= WIDE_COLUMNS, "-wide")
+        """Wide terminals: let the per-pair panel and the plot share the width evenly.
+        Below :data:`MIN_SIZE` the panels give way to a line saying so (cropped panels
+        would show wrong-looking figures)."""
+        width, height = self.size
+        self.screen.set_class(width >= WIDE_COLUMNS, "-wide")
+        small = width < MIN_SIZE[0] or height < MIN_SIZE[1]
+        with contextlib.suppress(NoMatches):
+            if small:
+                self.query_one("#too-small", Static).update(
+                    f"The terminal is too small: {width}x{height}.\n"
+                    f"The bench screen needs at least {MIN_SIZE[0]}x{MIN_SIZE[1]};"
+                    " enlarge the window (acquisition and logging go on).\n\nq quits."
+                )
+        self.screen.set_class(small, "-small")
 
     # -- snapshots ------------------------------------------------------------------------
     def poll(self) -> None:
@@ -172,14 +219,15 @@ class BenchApp(App[int]):
 
     @work(thread=True, exclusive=False, group="poll", exit_on_error=False)
     def _take_snapshot(self, width: int, height: int) -> None:
+        session = self.session
         try:
-            snap = self.session.snapshot(last=self._rows_needed())
+            snap = session.snapshot(last=self._rows_needed())
             plot, rates = self._prepare(snap, width, height)
         except Exception as exc:  # shown, never fatal: the runner keeps logging regardless
             self._polling = False
             self.call_from_thread(self.notify, f"snapshot failed: {exc!r}", severity="error")
             return
-        self.post_message(SnapshotReady(snap, plot, rates))
+        self.post_message(SnapshotReady(snap, plot, rates, session))
 
     def _prepare(
         self, snap: Snapshot, width: int, height: int, *, rates: bool = True, force: bool = False
@@ -206,6 +254,8 @@ class BenchApp(App[int]):
 
     def on_snapshot_ready(self, message: SnapshotReady) -> None:
         self._polling = False
+        if message.source is not None and message.source is not self.session:
+            return  # taken from a session a replay restart has replaced
         self.snapshots_received += 1
         self.last_snapshot = message.snapshot
         try:
@@ -265,7 +315,7 @@ class BenchApp(App[int]):
             return
         self._failure_seen = rs.failure
         self.cursor_n = rs.failure.n
-        self.notify(f"stopped at {rs.failure.text}", title="vote failure")
+        self.notify(f"stopped at {rs.failure.text}", title=self.seek_label)
 
     # -- status bar -----------------------------------------------------------------------
     def _update_status_bar(self) -> None:
@@ -277,7 +327,7 @@ class BenchApp(App[int]):
             text.append(" REPLAY ", style="bold black on cyan")
             if rs is not None:
                 if rs.seeking:
-                    state = "⏩ seeking vote failure"
+                    state = f"⏩ seeking {self.seek_label}"
                 elif rs.finished and rs.consumed >= rs.emitted:
                     state = "■ end of log"
                 else:
@@ -289,6 +339,9 @@ class BenchApp(App[int]):
                     text.append(f"  log {duration_text(rs.log_t - rs.log_t0)}")
         else:
             text.append(" LIVE ", style="bold black on green")
+        if self.display_paused:
+            text.append(" ", style="")
+            text.append(" PAUSED ", style="bold black on yellow")
         if s is not None:
             text.append(f"  {s.source}")
             if len(s.results):
@@ -304,18 +357,16 @@ class BenchApp(App[int]):
             else:
                 text.append("  ● REC", style="bold red")
         if self.display_paused:
-            text.append("  DISPLAY PAUSED (acquisition and log continue)", style="bold yellow")
+            text.append("  display paused: acquisition and log continue", style="yellow")
         if self.quitting:
             text.append("  finishing the log…", style="bold yellow")
         self.query_one("#status-bar", Static).update(text, layout=False)
+        self.title = f"{self.TITLE} PAUSED" if self.display_paused else self.TITLE
 
     def _plot_title(self) -> str:
         w = self.window_s
         span = f"{w:.0f} s" if w < 120 else f"{w / 60:.0f} min"
-        return (
-            f"Gradient ‰ · last {span} · [white]final[/] [cyan]g12[/] [magenta]g23[/] "
-            "[yellow]g13[/] [green]ours[/]"
-        )
+        return f"Gradient ‰ · last {span} · {legend_markup()}"
 
     # -- actions --------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
@@ -367,6 +418,56 @@ class BenchApp(App[int]):
         tol = next_tolerance(self.session.tolerance(), int(direction))
         self.session.set_tolerance(tol)
         self.notify(f"tolerance ±{tol:g} ‰")
+
+    def action_filter_events(self) -> None:
+        """Show only one kind of event: all -> each kind seen so far -> all."""
+        kind = self.query_one(EventsPanel).cycle_filter()
+        self.notify(f"events: {'all' if kind is None else kind_name(kind) + ' only'}")
+
+    def _key_help(self) -> list[tuple[str, str]]:
+        """(key, what it does) for every key of this App, footer or not."""
+        by_key: dict[str, Binding] = {}
+        for cls in reversed(type(self).__mro__):
+            for binding in cls.__dict__.get("BINDINGS", []):
+                if isinstance(binding, Binding):
+                    by_key[binding.key] = binding
+        out = []
+        for binding in by_key.values():
+            action = binding.action.split("(")[0]
+            if binding.key in ("ctrl+c", "escape") or binding.action == "tolerance(-1)":
+                continue  # one line for + and -; escape has its own line
+            if self.check_action(action, ()) is False:
+                continue
+            key = binding.key_display or binding.key.split(",")[0]
+            key = "+ / -" if key == "+" else key
+            out.append((key, KEY_HELP.get(action, binding.description)))
+        return out
+
+    def action_help(self) -> None:
+        if not isinstance(self.screen, HelpScreen):
+            self.push_screen(HelpScreen(self._key_help(), replay=self.session.mode == "replay"))
+
+    def action_escape(self) -> None:
+        """Close what is open: the help or the palette (their own Escape), else leave the
+        Events list, which then follows the newest rows again."""
+        if isinstance(self.screen, HelpScreen):
+            self.screen.dismiss(None)
+            return
+        if self.focused is not None:
+            self.set_focus(None)
+            self.query_one(EventsPanel).scroll_end(animate=False)
+
+    def action_screenshot(self, filename: str | None = None, path: str | None = None) -> None:
+        """Save an SVG of the screen under ``logs/`` (created if need be)."""
+        folder = Path(path) if path else SCREENSHOT_DIR
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            name = filename or time.strftime("screen-%Y%m%dT%H%M%SZ.svg", time.gmtime())
+            saved = self.save_screenshot(name, str(folder))
+        except OSError as exc:
+            self.notify(f"screenshot failed: {exc.strerror or exc}", severity="error")
+            return
+        self.notify(f"screenshot saved to {saved}", title="Screenshot")
 
     def action_window(self) -> None:
         i = WINDOWS_S.index(self.window_s) if self.window_s in WINDOWS_S else -1
@@ -454,14 +555,14 @@ class BenchApp(App[int]):
         yield SystemCommand(
             "Plot window", "Cycle 10 s / 30 s / 1 min / 5 min (w)", self.action_window
         )
-        if self.session.replay is not None:
-            yield SystemCommand("Play/pause replay", "(space)", self.action_play_pause)
-            yield SystemCommand("Replay speed", "Cycle 1x / 10x / max (s)", self.action_speed)
-            yield SystemCommand("Step", "One sample on (n)", self.action_step)
-            yield SystemCommand(
-                "Next vote failure", "Run to the next vote failure (j)", self.action_next_failure
-            )
+        yield SystemCommand(
+            "Filter events", "Show one kind of event, or all (f)", self.action_filter_events
+        )
+        yield SystemCommand("Help", "Keys and panels (?)", self.action_help)
+        yield SystemCommand(
+            "Screenshot", "Save an SVG of the screen under logs/", self.action_screenshot
+        )
         yield SystemCommand("Quit", "Stop, finish the MCAP log and leave (q)", self.action_quit)
         for cmd in super().get_system_commands(screen):
-            if cmd.title not in ("Quit",):
+            if cmd.title not in ("Quit", "Screenshot"):
                 yield cmd

@@ -11,11 +11,14 @@ from bench.live.runner import Snapshot
 class SnapshotReady(Message):
     """A snapshot was taken and the plot drawn off the UI thread (None: not redrawn)."""
 
-    def __init__(self, snapshot: Snapshot, plot: Text | None, rates: list[float]) -> None:
+    def __init__(
+        self, snapshot: Snapshot, plot: Text | None, rates: list[float], source: object = None
+    ) -> None:
         super().__init__()
         self.snapshot = snapshot
         self.plot = plot
         self.rates = rates
+        self.source = source  # the session it came from (a replay restart replaces it)
 
 
 class SessionStopped(Message):

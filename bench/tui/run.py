@@ -14,9 +14,9 @@ def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
     one runs in the engine process, :mod:`bench.engine.client`; the App cannot tell). Even a
     Ctrl-C while Textual is still being imported stops the session."""
     try:
-        from bench.tui.app import BenchApp
+        from bench.tui.replay_app import create_app
 
-        app = BenchApp(session, handle_signals=True, **app_kwargs)
+        app = create_app(session, handle_signals=True, **app_kwargs)
         session.start()
         code = app.run()
     finally:

@@ -28,6 +28,7 @@ from devices.emulator.scenario import (
     scenario_from_dict,
 )
 from devices.emulator.simulation import (
+    ODOMETER_TRUTH_DTYPE,
     TRUTH_COLUMNS,
     TRUTH_DTYPE,
     FaultEffect,
@@ -38,6 +39,7 @@ from devices.emulator.simulation import (
 
 __all__ = [
     "FAULT_KINDS",
+    "ODOMETER_TRUTH_DTYPE",
     "TRUTH_COLUMNS",
     "TRUTH_DTYPE",
     "CanPlayer",

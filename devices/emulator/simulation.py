@@ -51,6 +51,17 @@ TRUTH_DTYPE = np.dtype(
 )
 TRUTH_COLUMNS = TRUTH_DTYPE.names
 
+ODOMETER_TRUTH_DTYPE = np.dtype(
+    [
+        ("time_s", "<f8"),  # the instant the SPEED_REF frame is queued, frames' time base
+        ("measured_s", "<f8"),  # the instant its speed describes (time_s - lag_s)
+        ("train_speed_mps", "<f8"),  # the train's true speed then
+        ("wheel_error_mps", "<f8"),  # wheel slide (< 0) or slip (> 0) then
+        ("reported_mps", "<f8"),  # what the frame carries (noise, quantisation), m/s
+    ]
+)
+"""One row per SPEED_REF frame the odometer sends (delivered or not): what it got wrong."""
+
 _EMPTY = np.zeros(0, dtype=np.int64)
 
 
@@ -120,6 +131,9 @@ class Simulation:
     board_uid: np.ndarray  # the board's frames as sent on the UART: identity...
     board_send_us: np.ndarray  # ...and send time (relative us)
     board_data: np.ndarray  # (N, 8) payloads as sent (source faults applied)
+    odometer: np.ndarray = field(  # ODOMETER_TRUTH_DTYPE, one row per SPEED_REF sent
+        default_factory=lambda: np.zeros(0, dtype=ODOMETER_TRUTH_DTYPE)
+    )
     _uart: UartStream | None = None
 
     # per-frame facts, by identity
@@ -242,8 +256,10 @@ def simulate(sc: Scenario) -> Simulation:
     ticks = sc.board_time0_ticks + (idx * 10_000 + rate // 2) // rate
     parts = [adc_frames(sc.base_id, sample_us, sc.board.latency_us, counters, codes, status, ticks)]
     parts.append(_status_stream(sc, duration_us, jumps))
+    odometer = np.zeros(0, dtype=ODOMETER_TRUTH_DTYPE)
     if sc.speed_ref:
-        parts.append(_speed_stream(sc, duration_us, jumps))
+        speed_set, odometer = _speed_stream(sc, duration_us, jumps)
+        parts.append(speed_set)
     nominal = merge(parts)
     n_nom = len(nominal)
 
@@ -362,6 +378,7 @@ def simulate(sc: Scenario) -> Simulation:
         board_uid=board_uid,
         board_send_us=board_send_us,
         board_data=data[board_uid],
+        odometer=odometer,
     )
 
 
@@ -393,9 +410,12 @@ def _status_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameS
     )
 
 
-def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSet:
+def _speed_stream(
+    sc: Scenario, duration_us: int, jumps: list[Fault]
+) -> tuple[FrameSet, np.ndarray]:
     """SPEED_REF on the odometer's own clock: it sends every 20 ms of ITS time, so a clock
-    drift changes the true spacing; its timestamps start at its own time0."""
+    drift changes the true spacing; its timestamps start at its own time0. Also the
+    odometer's truth (ODOMETER_TRUTH_DTYPE) per frame."""
     od = sc.odometer
     period_s = 1.0 / SPEED_REF_RATE_HZ
     rate = 1.0 + od.drift_ppm * 1e-6
@@ -406,9 +426,10 @@ def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSe
     m, when = m[keep], when[keep]
     measured = when / 1e6 - od.lag_s
     v = scenario_motion(sc, measured)
-    speed = v.speed_mps + wheel_error(
+    wheel = wheel_error(
         od, measured, v.accel_mps2, v.speed_mps, sc.duration_s, fx.rng_for(sc.seed, fx.LAYER_WHEEL)
     )
+    speed = v.speed_mps + wheel
     if od.noise_mps:
         noise = od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
         # a wheel-pulse odometer at rest reads 0
@@ -416,7 +437,14 @@ def _speed_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSe
     mm = quantise_speed(speed, od.resolution_mps)
     ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
     counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)
-    return speed_frames(when, counters, mm, ticks)
+    truth = np.zeros(len(m), dtype=ODOMETER_TRUTH_DTYPE)
+    start_us = fx.to_us(sc.start_time_s)
+    truth["time_s"] = (start_us + when) / 1e6
+    truth["measured_s"] = truth["time_s"] - od.lag_s
+    truth["train_speed_mps"] = v.speed_mps
+    truth["wheel_error_mps"] = wheel
+    truth["reported_mps"] = mm / 1000.0
+    return speed_frames(when, counters, mm, ticks), truth
 
 
 def _targeted(nominal: FrameSet, f: Fault, rows: np.ndarray | None = None) -> np.ndarray:

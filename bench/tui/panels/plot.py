@@ -21,12 +21,50 @@ WINDOWS_S = (10.0, 30.0, 60.0, 300.0)
 """Selectable plot windows (the runner keeps 60000 results: 5 min at 200 Hz, 1 min at 1 kHz)."""
 
 TRACES = (
-    ("gradient", "final", "white"),
-    ("g12", "g12", "cyan"),
-    ("g23", "g23", "magenta"),
-    ("g13", "g13", "yellow"),
-    ("signed", "ours", "green"),
+    ("g12", "g12", "#00c8ff"),
+    ("g23", "g23", "#d070ff"),
+    ("g13", "g13", "#ffc400"),
+    ("signed", "ours", "#50d050"),
+    ("gradient", "final", "#ffffff"),
 )
+"""(column, legend label, colour), in drawing order: the final gradient last, on top. Colours
+are RGB, not colour names: plotext's names go through the terminal's palette (white and
+yellow came out alike, magenta as the FAIL pink), these reach the screen as written."""
+
+
+def rgb(color: str) -> tuple[int, int, int]:
+    """'#rrggbb' as the (r, g, b) plotext takes."""
+    return (int(color[1:3], 16), int(color[3:5], 16), int(color[5:7], 16))
+
+
+def legend_markup() -> str:
+    """The legend in the panel title, in the traces' own colours (final first)."""
+    order = sorted(TRACES, key=lambda tr: tr[0] != "gradient")
+    return " ".join(f"[{color}]{label}[/]" for _, label, color in order)
+
+
+def nice_step(span: float, max_ticks: int) -> float:
+    """The smallest 1-2-5 x 10^k step that cuts ``span`` into at most ``max_ticks`` parts."""
+    span = max(span, 1e-9)
+    raw = span / max(1, max_ticks)
+    mag = 10.0 ** math.floor(math.log10(raw))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * mag >= raw * (1 - 1e-9):
+            return m * mag
+    return 10.0 * mag
+
+
+def y_ticks(lo: float, hi: float, rows: int) -> tuple[list[float], list[str]]:
+    """Round tick values (multiples of a 1-2-5 step, so 0 whenever it is in range) about
+    three or more rows apart (closer, the row rounding puts some labels on adjacent rows and
+    the axis reads uneven), labelled with as many decimals as the step needs."""
+    step = nice_step(hi - lo, max(3, rows // 3))
+    first = math.ceil(lo / step - 1e-9)
+    last = math.floor(hi / step + 1e-9)
+    ticks = [k * step for k in range(first, last + 1)]
+    decimals = max(0, -math.floor(math.log10(step) + 1e-9))
+    labels = [f"{0.0 if abs(t) < step / 2 else t:.{decimals}f}" for t in ticks]
+    return [0.0 if abs(t) < step / 2 else t for t in ticks], labels
 
 
 PLOT_CPU_SHARE = 0.15
@@ -127,8 +165,9 @@ def render_plot(plot: Plot, series: PlotSeries | None, width: int, height: int) 
             if ok.any():
                 # clip (rather than drop) what is off the scale, so it shows at the edge
                 ys = np.clip(y[ok], lo, hi)
-                plot.plot(series.x[ok].tolist(), ys.tolist(), color=color, marker="braille")
+                plot.plot(series.x[ok].tolist(), ys.tolist(), color=rgb(color), marker="braille")
     plot.ylim(lo, hi)
+    plot.yticks(*y_ticks(lo, hi, max(4, height)))
     return Text.from_ansi(plot.build(), no_wrap=True)
 
 

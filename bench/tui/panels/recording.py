@@ -46,8 +46,10 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
             table.add_row(str(last.get("path", MISSING)))
             table.add_row(_figures(last))
         return table
-    head = Text("● REC", style="bold red")
-    head.append("  " + duration_text(_first(status, _DURATION_KEYS)), style="bold")
+    head = Text("● REC ", style="bold red")
+    head.append(duration_text(_first(status, _DURATION_KEYS)), style="bold")
+    if "queue" in status:
+        head.append(f"  queue {status['queue']}", style="dim")
     table.add_row(head)
     path = str(status.get("path", MISSING))
     err = status.get("error") or status.get("errors")
@@ -55,15 +57,11 @@ def recording_table(status: dict[str, Any] | None, last: dict[str, Any] | None) 
         reason = str(err).removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
     table.add_row(path)
-    table.add_row(_figures(status, duration=False))
-    line = Text()
+    line = Text(_figures(status, duration=False))
     for key in ("dropped", "lost"):
         if status.get(key):
-            line.append(f"{key} {status[key]}  ", style="bold red")
-    if "queue" in status:
-        line.append(f"queue {status['queue']}", style="dim")
-    if line:
-        table.add_row(line)
+            line.append(f"  {key} {status[key]}", style="bold red")
+    table.add_row(line)
     extra = [f"{k} {v}" for k, v in status.items() if k not in _SHOWN and _is_scalar(v)]
     if extra:
         table.add_row(Text("  ".join(extra), style="dim"))

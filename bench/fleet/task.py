@@ -1,0 +1,141 @@
+"""One fleet task: hash a log, replay it, write its results partition, return its summary row.
+
+Runs on a Dask worker (any machine that sees the output folder at the same path). Never
+raises for a bad log: a log that cannot be read is a row with its error.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+FORMATS = {
+    ".log": "candump",
+    ".asc": "asc",
+    ".blf": "blf",
+    ".trc": "trc",
+    ".csv": "csv",
+    ".bin": "uart",
+    ".mcap": "mcap",
+}
+RESULTS_DIR = "results"
+PART_FILE = "part-0.parquet"
+
+
+def content_hash(path: str | Path, block: int = 1 << 20) -> str:
+    """sha256 of the file's bytes (hashlib releases the GIL on large blocks)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(block):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def log_id(path: str | Path, digest: str) -> str:
+    """The log's name in results/ (``log=<id>``): its stem, made path- and SQL-friendly,
+    and the start of its content hash (two files of one name stay apart)."""
+    stem = re.sub(r"[^A-Za-z0-9._-]+", "_", Path(path).stem).strip("._") or "log"
+    return f"{stem[:60]}-{digest[:12]}"
+
+
+def partition(out_dir: str | Path, lid: str) -> Path:
+    return Path(out_dir) / RESULTS_DIR / f"log={lid}"
+
+
+def replay_one(
+    path: str, out_dir: str, config_toml: str | None, done: frozenset[str] = frozenset()
+) -> dict[str, Any]:
+    """Replay ``path`` into ``out_dir/results/log=<id>/`` and return its logs.parquet row.
+    ``done``: content hashes already replayed (the row then only says ``skipped``)."""
+    from bench import __version__
+
+    start = time.perf_counter()
+    row: dict[str, Any] = {
+        "path": str(path),
+        "format": FORMATS.get(Path(path).suffix.lower(), Path(path).suffix.lower().lstrip(".")),
+        "bench_version": __version__,
+    }
+    try:
+        row["size_bytes"] = os.path.getsize(path)
+        digest = content_hash(path)
+    except OSError as exc:
+        row["error"] = f"cannot read: {exc.strerror or exc}"
+        row["log"] = log_id(path, "0" * 64)
+        return row
+    row["content_hash"] = digest
+    row["log"] = lid = log_id(path, digest)
+    if digest in done:
+        row["skipped"] = True
+        return row
+    part = partition(out_dir, lid)
+    tmp = part / f".{PART_FILE}.{os.getpid()}.tmp"
+    try:
+        row.update(_replay_into(path, tmp, config_toml))
+        os.replace(tmp, part / PART_FILE)
+    except Exception as exc:  # a log that cannot be read is a row, never the end of the run
+        from bench.errors import BenchError
+
+        row["error"] = str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        with contextlib.suppress(OSError):
+            (part / PART_FILE).unlink()
+        with contextlib.suppress(OSError):
+            part.rmdir()
+    row["wall_s"] = time.perf_counter() - start
+    return row
+
+
+_CONFIG_TOML: dict[str, Any] = {}
+"""Configs parsed on this worker, by their TOML text."""
+
+
+def _config_for(path: str, config_toml: str | None) -> Any:
+    """The calibration: the one given (as TOML), else what `bench replay` would use (an MCAP
+    log's recorded one, else nominal: bench.config_choice.replay_config)."""
+    import tomllib
+
+    from bench.config import config_from_dict
+    from bench.config_choice import replay_config
+
+    if config_toml is None:
+        return replay_config(None, path)
+    if config_toml not in _CONFIG_TOML:
+        data = tomllib.loads(config_toml)
+        name = data.pop("_path", "--config")  # the client's file name, for the record
+        _CONFIG_TOML[config_toml] = config_from_dict(data, source=name, path=name)
+    return _CONFIG_TOML[config_toml]
+
+
+def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
+    from bench.fleet.summary import SummarySink, summary_row
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
+    from bench.sinks.tables import parquet_sink, results_metadata
+
+    config = _config_for(path, config_toml)
+    source = open_replay(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        summary = SummarySink()
+        out = parquet_sink(target, results_metadata(config, path))
+        try:
+            outcome = replay(source, config, [out, summary], collect=False)
+        except BaseException:
+            with contextlib.suppress(Exception):
+                out.close()
+            raise
+        out.close()
+    finally:
+        source.close()
+    row = summary_row(outcome.pipeline.stats, summary)
+    row["calibration"] = config.to_toml()
+    row["calibration_source"] = config.describe()
+    row["result_rows"] = out.rows
+    return row
+

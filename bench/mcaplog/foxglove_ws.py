@@ -1,0 +1,200 @@
+"""The live Foxglove stream: a run's MCAP topics served over the Foxglove WebSocket protocol.
+
+Why this shape: Foxglove should show a live run exactly as it later shows the run's MCAP
+file, with the same layout (docs/foxglove/bench-layout.json). So the stream is not a second
+encoder: :class:`WsChannels` offers the part of :class:`~bench.mcaplog.file.McapFile`'s
+interface the :class:`~bench.mcaplog.encoder.MessageEncoder` writes to (schemas, channels,
+messages) on a foxglove-sdk WebSocket server, and :class:`FoxgloveSink` is the MCAP sink's
+very code (events, health every second, marks, drop events) writing into it. Same topics,
+same schemas, same messages, same counts.
+
+The receive path never waits on it: like the MCAP log it runs in a writer process of its own
+at idle priority, off the live CPU (:func:`bench.mcaplog.foxglove_stream.stream_sink`), fed
+from the runner's sinks (the
+processing thread only enqueues; a full queue drops the step and counts it in ``dropped``).
+Each connected client has the SDK's own bounded backlog (``BACKLOG`` messages; the SDK drops
+the oldest when a slow client falls behind).
+
+The SDK (0.30) speaks the protocol under the subprotocol name ``foxglove.sdk.v1``, the same
+protocol as ``foxglove.websocket.v1`` renamed; the Foxglove app offers both.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.config import Config
+
+log = logging.getLogger("bench.foxglove")
+
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8765
+BACKLOG = 65_536
+"""Messages the SDK buffers per client: a 0.25 s group at 1 kHz x 3 channels is ~5 000."""
+SERVER_NAME = "gradient bench"
+LINGER_S = 0.5
+"""How long the server stays up after the last message of a run (see WsChannels.finish)."""
+
+
+def stream_label(host: str, port: int) -> str:
+    return f"ws://{host}:{port}"
+
+
+class WsChannels:
+    """What :class:`MessageEncoder` needs of an MCAP file, on a foxglove-sdk WebSocket server:
+    schemas, channels and messages go out to subscribed clients as they come. Counts per
+    channel are kept (``written``) so the sink's figures read as for a file."""
+
+    def __init__(self, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT) -> None:
+        import foxglove
+
+        self._fg = foxglove
+        self.context = foxglove.Context()
+        try:
+            self.server = foxglove.start_server(
+                name=SERVER_NAME,
+                host=host,
+                port=port,
+                context=self.context,
+                message_backlog_size=BACKLOG,
+            )
+        except Exception as exc:  # the SDK raises its own error types for a port in use
+            raise OSError(f"cannot serve Foxglove on {stream_label(host, port)}: {exc}") from None
+        self.host = host
+        self.port = int(self.server.port)
+        self._schemas: list[Any] = []
+        self._channels: list[Any] = []
+        self._counts: Counter[int] = Counter()
+        self.position = 0  # payload bytes handed to the server
+        self.pending_messages = 0  # nothing is held back: every message goes out at once
+        self.closed = False
+
+    # -- McapFile's message interface ------------------------------------------------------
+    def add_schema(self, name: str, encoding: str, data: bytes) -> int:
+        self._schemas.append(self._fg.Schema(name=name, encoding=encoding, data=bytes(data)))
+        return len(self._schemas)
+
+    def add_channel(
+        self,
+        topic: str,
+        message_encoding: str,
+        schema_id: int,
+        metadata: Mapping[str, str] | None = None,
+        *,
+        lane: int = 0,
+    ) -> int:
+        channel = self._fg.Channel(
+            topic,
+            schema=self._schemas[schema_id - 1],
+            message_encoding=message_encoding,
+            context=self.context,
+            metadata=dict(metadata or {}),
+        )
+        self._channels.append(channel)
+        return len(self._channels)
+
+    def add_fixed_records(self, channel_id: int, records: np.ndarray) -> None:
+        """Complete MCAP Message records of one size: their payloads go out one by one."""
+        if not len(records):
+            return
+        payload = records["payload"]
+        raw = payload.tobytes()
+        size = payload.dtype.itemsize
+        self._log(channel_id, records["log_time"].tolist(), raw, size)
+
+    def add_messages(
+        self,
+        channel_id: int,
+        log_times: np.ndarray,
+        payloads: Sequence[bytes],
+        sequences: Sequence[int] | np.ndarray,
+    ) -> None:
+        base = self._channels[channel_id - 1].base
+        for lt, payload in zip(np.asarray(log_times).tolist(), payloads, strict=True):
+            base.log(payload, int(lt))
+            self.position += len(payload)
+        self._counts[channel_id] += len(payloads)
+
+    def _log(self, channel_id: int, log_times: list[int], raw: bytes, size: int) -> None:
+        base = self._channels[channel_id - 1].base
+        view = memoryview(raw)
+        for i, lt in enumerate(log_times):
+            base.log(bytes(view[i * size : (i + 1) * size]), int(lt))
+        self.position += len(raw)
+        self._counts[channel_id] += len(log_times)
+
+    def written(self, channel_id: int) -> int:
+        return self._counts[channel_id]
+
+    # -- the rest of the file interface: a stream has no metadata, chunks or summary ---------
+    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
+        pass
+
+    def add_attachment(
+        self, name: str, data: bytes, media_type: str = "", log_time: int = 0
+    ) -> None:
+        pass
+
+    def maybe_flush(self) -> int:
+        return 0
+
+    def flush_chunk(self) -> int:
+        return 0
+
+    def flush_io(self) -> None:
+        pass
+
+    def finish(self) -> None:
+        """The run is over: give connected clients ``LINGER_S`` to receive the last
+        messages (the final health snapshot), then stop the server."""
+        if not self.closed:
+            time.sleep(LINGER_S)
+        self.abort()
+
+    def abort(self) -> None:
+        if not self.closed:
+            self.closed = True
+            with contextlib.suppress(Exception):
+                self.server.stop()
+
+
+def foxglove_sink_class() -> type:
+    """:class:`FoxgloveSink`, built on the MCAP sink (imported late: the writer process
+    imports this module before it knows which sink it runs)."""
+    from bench.mcaplog.sink import McapSink
+
+    class FoxgloveSink(McapSink):  # type: ignore[misc, valid-type]
+        """The MCAP sink's code writing into :class:`WsChannels` instead of a file."""
+
+        def __init__(
+            self,
+            config: Config,
+            metadata: Mapping[str, str] | None = None,
+            attachments: Sequence[tuple[str, bytes]] = (),
+            *,
+            host: str = DEFAULT_HOST,
+            port: int = DEFAULT_PORT,
+            **options: Any,
+        ) -> None:
+            self.host, self.port = host, int(port)
+            options.pop("compression", None)
+            super().__init__(stream_label(host, port), config, metadata, attachments, **options)
+
+        def _open_file(self, chunk_size: int, compression: str) -> Any:
+            ws = WsChannels(self.host, self.port)
+            self.port = ws.port
+            self.path = Path(stream_label(self.host, ws.port))
+            return ws
+
+        def status(self) -> dict[str, Any]:
+            return {**super().status(), "port": self.port}
+
+    return FoxgloveSink

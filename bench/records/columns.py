@@ -1,0 +1,228 @@
+"""Results (and events, samples) as Arrow columns: names with units, one schema for every writer.
+
+The column layout is derived from the numpy dtypes (``RESULT_DTYPE`` and friends) and a table of
+names and units below, so a field added to a dtype becomes a column without touching the
+writers (``tests/test_columns.py`` insists that it has a unit entry). A sub-array field
+(``acc``: three channels) becomes one column per element (``a1_mps2``, ``a2_mps2``, ...).
+
+Conventions, the same in CSV and Parquet:
+
+* a column name ends in its unit where it has one (``_s``, ``_mps2``, ``_permil``); the unit is
+  also in each Parquet field's metadata (``unit``, ``description``);
+* a float NaN (not computable, channel not usable) is a null: an empty CSV cell;
+* booleans are Arrow booleans (written 0/1 in CSV), integers stay integers (``excluded`` is 0
+  for none, else the channel 1..3);
+* ``utc`` beside ``time_s``: the receive time as a UTC timestamp where the source stamps
+  frames with wall-clock time (a receive time after 2000-01-01 is taken as Unix time), else
+  null (emulator files and logs with relative times).
+
+:func:`results_from_table` turns a table back into ``RESULT_DTYPE`` rows, bit for bit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from bench.records.events import EVENT_DTYPE
+from bench.records.results import RESULT_DTYPE
+
+UNIX_TIME_FROM = 946_684_800.0
+"""Receive times at or after 2000-01-01T00:00:00Z are Unix time (a wall clock stamped the
+frame); smaller ones are relative to the start of a recording."""
+
+UTC_COLUMN = "utc"
+
+
+@dataclass(frozen=True, slots=True)
+class Column:
+    """One output column: where its values come from and what they mean."""
+
+    name: str
+    field: str  # dtype field
+    index: int | None  # element of a sub-array field, else None
+    unit: str  # "" for counts, flags and indices
+    description: str
+
+
+# field -> (column names, one per element for a sub-array field; unit; description)
+RESULT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "time_s": (("time_s",), "s", "board time from the first sample"),
+    "n": (("counter",), "", "unwrapped sample index (the board's sample counter)"),
+    "acc": (
+        ("a1_mps2", "a2_mps2", "a3_mps2"),
+        "m/s^2",
+        "calibrated acceleration per channel; null where the channel is not usable",
+    ),
+    "slopes": (
+        ("g12_permil", "g23_permil", "g13_permil"),
+        "permil",
+        "pair gradients of the reference method; null where not computable",
+    ),
+    "votes": (("v1", "v2", "v3"), "", "two-out-of-three votes of the reference method"),
+    "weights": (("w12", "w23", "w13"), "1", "weights of the pair gradients in the result"),
+    "gradient": (("gradient_permil",), "permil", "reference result; null when invalid"),
+    "valid": (("valid",), "", "the reference result is valid"),
+    "gradient_signed": (
+        ("gradient_signed_permil",),
+        "permil",
+        "the bench estimator's signed gradient; null when unavailable",
+    ),
+    "a_ref": (
+        ("a_ref_mps2",),
+        "m/s^2",
+        "reference acceleration from SPEED_REF; null when unavailable",
+    ),
+    "residual": (("residual_mps2",), "m/s^2", "least-squares residual of the estimator"),
+    "degraded": (("degraded",), "", "the estimate comes from two channels only"),
+    "excluded": (("excluded",), "", "channel excluded by the estimator (1..3), 0 = none"),
+    "gradient_ls": (
+        ("gradient_ls_permil",),
+        "permil",
+        "least-squares gradient magnitude (needs no a_ref)",
+    ),
+    "u": (("u_mps2",), "m/s^2", "specific force along the track"),
+    "w": (("w_mps2",), "m/s^2", "specific force normal to the track"),
+    "t": (("receive_time_s",), "s", "receive time of the sample's last frame"),
+    "ticks": (("ticks",), "100 us", "unwrapped board time in board ticks"),
+    "seq": (("seq",), "", "arrival index of the sample's last frame"),
+    "code": (("code1", "code2", "code3"), "LSB", "raw ADC codes (0 where absent)"),
+    "status": (("status1", "status2", "status3"), "", "status bytes per channel"),
+    "present": (("present1", "present2", "present3"), "", "a frame of the channel joined"),
+}
+"""Names, units and meaning of the result fields, in output order (the analyst's columns
+first); RESULT_DTYPE fields not listed follow in dtype order, named as the field."""
+
+EVENT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
+    "t": (("receive_time_s",), "s", "receive time at which the event was noticed"),
+    "kind": (("kind",), "", "bench.events.EventKind value"),
+    "channel": (("channel",), "", "ADC channel 1..3, 0 when none"),
+    "n": (("counter",), "", "sample index, -1 when none"),
+    "value": (("value",), "", "kind-specific value (docs/MCAP.md)"),
+}
+
+
+def columns_of(dtype: np.dtype, table: dict[str, tuple[tuple[str, ...], str, str]]) -> list[Column]:
+    """The output columns of ``dtype``: the table's fields in table order, then the rest."""
+    assert dtype.names is not None
+    order = [f for f in table if f in dtype.names] + [f for f in dtype.names if f not in table]
+    out: list[Column] = []
+    for fname in order:
+        sub = dtype.fields[fname][0]  # type: ignore[index]
+        width = int(np.prod(sub.shape)) if sub.shape else 0
+        names, unit, doc = table.get(fname, ((), "", ""))
+        if width:
+            names = names if len(names) == width else tuple(f"{fname}{k + 1}" for k in range(width))
+            out += [Column(nm, fname, k, unit, doc) for k, nm in enumerate(names)]
+        else:
+            out.append(Column(names[0] if names else fname, fname, None, unit, doc))
+    return out
+
+
+def _arrow_type(dt: np.dtype) -> pa.DataType:
+    base = dt.base if dt.shape else dt
+    return pa.bool_() if base == np.bool_ else pa.from_numpy_dtype(base)
+
+
+class Layout:
+    """The Arrow schema of one numpy record dtype and the conversion of its rows."""
+
+    def __init__(
+        self,
+        dtype: np.dtype,
+        table: dict[str, tuple[tuple[str, ...], str, str]],
+        *,
+        utc_after: str | None = None,
+        utc_from: str = "t",
+        metadata: dict[str, str] | None = None,
+    ) -> None:
+        self.dtype = dtype
+        self.columns = columns_of(dtype, table)
+        self.utc_after = utc_after  # the column the UTC timestamp goes beside
+        self.utc_from = utc_from
+        fields = []
+        self.aligned: list[Column | None] = []  # per schema field; None for the UTC column
+        for col in self.columns:
+            self.aligned.append(col)
+            meta = {"unit": col.unit, "description": col.description}
+            kind = _arrow_type(dtype.fields[col.field][0])  # type: ignore[index]
+            fields.append(pa.field(col.name, kind, metadata=meta))
+            if col.name == utc_after:
+                meta = {"unit": "UTC", "description": "receive time as UTC, where it is wall time"}
+                fields.append(pa.field(UTC_COLUMN, pa.timestamp("us", tz="UTC"), metadata=meta))
+                self.aligned.append(None)
+        self.schema = pa.schema(fields, metadata=metadata)
+
+    def with_metadata(self, metadata: dict[str, str]) -> Layout:
+        """The same layout, its schema carrying file-level ``metadata``."""
+        other = object.__new__(Layout)
+        other.__dict__.update(self.__dict__)
+        other.schema = self.schema.with_metadata(metadata)
+        return other
+
+    @property
+    def names(self) -> list[str]:
+        return self.schema.names
+
+    def batch(self, rows: np.ndarray) -> pa.RecordBatch:
+        """``rows`` (of this layout's dtype) as one record batch; NaN floats become nulls."""
+        arrays: list[pa.Array] = []
+        for col in self.columns:
+            x = rows[col.field] if col.index is None else rows[col.field][:, col.index]
+            x = np.ascontiguousarray(x)
+            if x.dtype.kind == "f":
+                nan = np.isnan(x)
+                arrays.append(pa.array(x, mask=nan) if nan.any() else pa.array(x))
+            else:
+                arrays.append(pa.array(x))
+            if col.name == self.utc_after:
+                arrays.append(utc_array(rows[self.utc_from]))
+        return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
+
+    def rows(self, table: pa.Table | pa.RecordBatch) -> np.ndarray:
+        """The rows of ``table`` (written by :meth:`batch`) back as this layout's dtype;
+        nulls in float columns become NaN."""
+        out = np.zeros(table.num_rows, dtype=self.dtype)
+        for col in self.columns:
+            values = table.column(col.name)
+            if isinstance(values, pa.ChunkedArray):
+                values = values.combine_chunks()
+            target = out[col.field] if col.index is None else out[col.field][:, col.index]
+            if target.dtype.kind == "f":
+                target[...] = values.to_numpy(zero_copy_only=False)  # nulls -> NaN
+            else:
+                target[...] = values.to_numpy(zero_copy_only=False)
+        return out
+
+
+def utc_array(t: np.ndarray) -> pa.Array:
+    """Receive times (s) as UTC microsecond timestamps; null where they are not Unix time."""
+    wall = np.isfinite(t) & (t >= UNIX_TIME_FROM)
+    us = np.zeros(len(t), dtype=np.int64)
+    us[wall] = np.round(t[wall] * 1e6).astype(np.int64)
+    return pa.array(us, type=pa.timestamp("us", tz="UTC"), mask=~wall)
+
+
+RESULTS = Layout(RESULT_DTYPE, RESULT_FIELDS, utc_after="time_s")
+"""The results' columns: what `bench replay --parquet`, `bench log export --parquet` and
+`bench fleet`'s dataset hold."""
+
+CSV_LEFT_OUT = frozenset(
+    {"t", "ticks", "seq", "code", "status", "present", "gradient_ls", "u", "w"}
+)
+"""Result fields the CSV leaves out (raw codes and the estimator's internals: in the Parquet
+file); every other field, new ones included, is a CSV column."""
+CSV_SCHEMA = pa.schema(
+    [f for f, c in zip(RESULTS.schema, RESULTS.aligned, strict=True)
+     if c is None or c.field not in CSV_LEFT_OUT],
+    metadata=RESULTS.schema.metadata,
+)  # fmt: skip
+"""The results CSV's columns (in the Parquet file's order)."""
+EVENTS = Layout(EVENT_DTYPE, EVENT_FIELDS, utc_after="receive_time_s")
+
+
+def results_from_table(table: pa.Table | pa.RecordBatch) -> np.ndarray:
+    """RESULT_DTYPE rows from a table of :data:`RESULTS` columns (a read-back Parquet file)."""
+    return RESULTS.rows(table)

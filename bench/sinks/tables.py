@@ -1,0 +1,389 @@
+"""Results written as CSV or Parquet by pyarrow, in a thread of their own behind a bounded hand-off.
+
+Why a thread: turning floats into shortest round-trip text and compressing Parquet pages is
+most of the cost of an output, and pyarrow does both without the GIL, so they overlap the
+pipeline. Why bounded: a replay must not hold all its results at once (the producer waits
+when ``max_pending_rows`` are queued), and a live run must never wait on a disk (the rows
+that do not fit are counted as lost instead).
+
+Files (:class:`CsvFile`, :class:`ParquetFile`) write whole Arrow tables; :class:`TableSink`
+is the pipeline-facing :class:`bench.sinks.Sink` that batches rows for them. A write that
+fails (disk full, a broken device) does not raise in the pipeline: the sink keeps the
+first error in ``error`` (one line naming the file), drops what follows and counts it in
+``rows_lost``; the replay turns that into ``bench: error:`` and exit 2, a live run into an
+event, a status-line flag and a non-zero exit while the MCAP log goes on.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from bench.records.columns import CSV_SCHEMA, RESULTS, Layout
+from bench.sinks.paths import STDOUT, check_output_file, describe_os_error
+
+CSV_CHUNK_ROWS = 65_536
+"""Rows per CSV write in a replay (one Arrow conversion per chunk)."""
+PARQUET_ROW_GROUP = 262_144
+"""Rows per Parquet row group: large enough for zstd and column statistics to pay off,
+small enough that a writer holds ~60 MB at most."""
+TAKE_ROWS = 32_768
+"""A replay hands rows to the writer in about this many at a time (and waits when twice as
+many are queued): the bound on the results a replay holds besides one chunk."""
+LIVE_INTERVAL_S = 0.5
+"""A live run's CSV is written this often: the writer wakes on a timer, not per step, so it
+never takes the GIL between the acquisition and processing threads' hand-offs."""
+LIVE_MAX_PENDING_ROWS = 200_000
+"""Rows a live CSV may fall behind (200 s at 1 kHz) before rows are counted as lost."""
+
+
+def open_stream(target: str | Path) -> pa.NativeFile:
+    """A pyarrow output stream for a path or ``-`` (stdout)."""
+    if str(target) == STDOUT:
+        return pa.PythonFile(sys.stdout.buffer, mode="w")
+    return pa.OSFile(str(target), "wb")
+
+
+def _csv_schema(schema: pa.Schema) -> pa.Schema:
+    """Booleans as 0/1 integers (the form spreadsheets and `csv` readers expect)."""
+    return pa.schema(
+        [pa.field(f.name, pa.uint8()) if f.type == pa.bool_() else f for f in schema],
+        metadata=schema.metadata,
+    )
+
+
+class TableFile(Protocol):
+    path: str
+
+    def write(self, table: pa.Table) -> None: ...
+
+    def close(self) -> None: ...
+
+
+PARALLEL_ROWS = 8192
+"""Chunks of at least this many rows have their columns turned into text by two threads
+(pyarrow's cast runs without the GIL): text is most of a CSV's cost."""
+
+
+class CsvFile:
+    """A CSV file of ``schema``'s columns (tables written to it may have more): a plain
+    header line (the column names, each ending in its unit), then pyarrow's CSV writer:
+    floats in shortest round-trip form, NaN/null as an empty cell, integers as integers,
+    booleans as 0/1."""
+
+    def __init__(
+        self,
+        target: str | Path | pa.NativeFile,
+        schema: pa.Schema = CSV_SCHEMA,
+        *,
+        opener: Callable[[str | Path], pa.NativeFile] | None = None,
+    ) -> None:
+        self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
+        self._own = not isinstance(target, pa.NativeFile)
+        opener = opener or open_stream  # looked up now: a test may stand in a failing stream
+        self._out = opener(target) if self._own else target  # type: ignore[arg-type]
+        self._schema = _csv_schema(schema)
+        self._out.write((",".join(schema.names) + "\n").encode())
+        self._text_schema = pa.schema([pa.field(f.name, pa.string()) for f in self._schema])
+        options = pa_csv.WriteOptions(include_header=False, quoting_style="none")
+        self._writer = pa_csv.CSVWriter(self._out, self._text_schema, write_options=options)
+        self._pool: ThreadPoolExecutor | None = None
+
+    def write(self, table: pa.Table) -> None:
+        table = table.select(self._schema.names).cast(self._schema)
+        if table.num_rows >= PARALLEL_ROWS:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(2, thread_name_prefix="csv text")
+            text = list(self._pool.map(lambda c: c.cast(pa.string()), table.columns))
+        else:
+            text = [c.cast(pa.string()) for c in table.columns]
+        self._writer.write_table(pa.Table.from_arrays(text, schema=self._text_schema))
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+        try:
+            self._writer.close()
+        finally:
+            if self._own:
+                self._out.close()
+            else:
+                self._out.flush()
+
+
+class ParquetFile:
+    """A Parquet file of one layout, zstd-compressed, one row group per :meth:`write`; units
+    in the field metadata, what the file holds (calibration, source) in the file metadata."""
+
+    def __init__(
+        self,
+        target: str | Path | pa.NativeFile,
+        schema: pa.Schema = RESULTS.schema,
+        metadata: dict[str, str] | None = None,
+        *,
+        opener: Callable[[str | Path], pa.NativeFile] | None = None,
+    ) -> None:
+        self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
+        self._own = not isinstance(target, pa.NativeFile)
+        opener = opener or open_stream  # looked up now: a test may stand in a failing stream
+        self._out = opener(target) if self._own else target  # type: ignore[arg-type]
+        if metadata:
+            schema = schema.with_metadata({**(schema.metadata or {}), **metadata})
+        self._writer = pq.ParquetWriter(self._out, schema, compression="zstd")
+
+    def write(self, table: pa.Table) -> None:
+        self._writer.write_table(table, row_group_size=max(1, table.num_rows))
+
+    def close(self) -> None:
+        try:
+            self._writer.close()
+        finally:
+            if self._own:
+                self._out.close()
+
+
+def results_csv_text(results: np.ndarray) -> str:
+    """``results`` as the text of a results CSV (what `bench replay --csv` writes)."""
+    out = pa.BufferOutputStream()
+    f = CsvFile(out)
+    if len(results):
+        f.write(pa.Table.from_batches([RESULTS.batch(results)]))
+    f.close()
+    return out.getvalue().to_pybytes().decode()
+
+
+class TableSink:
+    """Pipeline results -> a :class:`TableFile`, written by a thread of its own.
+
+    ``live=False`` (a replay): the producer waits while ``max_pending_rows`` are queued, and
+    the writer works in chunks of ``chunk_rows``. ``live=True``: the producer never waits
+    (rows beyond the bound are lost and counted) and the writer wakes every
+    :data:`LIVE_INTERVAL_S`. ``raise_errors``: :meth:`write` raises the first write failure
+    (a replay stops at once); otherwise it is only kept in :attr:`error`."""
+
+    def __init__(
+        self,
+        file: TableFile,
+        layout: Layout = RESULTS,
+        *,
+        live: bool = False,
+        chunk_rows: int = CSV_CHUNK_ROWS,
+        max_pending_rows: int | None = None,
+        raise_errors: bool = False,
+        cpus: frozenset[int] | None = None,
+        kind: str = "CSV",
+    ) -> None:
+        self.file = file
+        self.path = file.path
+        self.kind = kind
+        self.layout = layout
+        self.live = live
+        self.chunk_rows = chunk_rows
+        self.take_rows = min(chunk_rows, TAKE_ROWS)
+        self.max_pending_rows = max_pending_rows or (
+            LIVE_MAX_PENDING_ROWS if live else 2 * self.take_rows
+        )
+        self.raise_errors = raise_errors
+        self.rows = 0  # rows written
+        self._lost_put = 0  # rows refused by put() (counted by the producer)
+        self._lost_write = 0  # rows the writer could not write (counted by the writer)
+        self.error: str | None = None
+        self.errno = 0  # of the first failure, when it was an OSError
+        self.broken_pipe = False
+        self._cpus = cpus
+        self._pending: list[np.ndarray] = []
+        self._pending_rows = 0
+        self._closing = False
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name=f"{kind} writer", daemon=True)
+        self._thread.start()
+
+    @property
+    def rows_lost(self) -> int:
+        """Rows not written: after a failure, or beyond a live run's bound."""
+        return self._lost_put + self._lost_write
+
+    # -- producer side (the pipeline's thread) ------------------------------------------------
+    def write(self, step: Any) -> None:
+        self.put(step.results)
+
+    def put(self, rows: np.ndarray) -> None:
+        if self.error is not None:
+            self._lost_put += len(rows)
+            self._raise()
+            return
+        if len(rows) == 0:
+            return
+        with self._cond:
+            if self.live:
+                if self._pending_rows + len(rows) > self.max_pending_rows:
+                    self._lost_put += len(rows)
+                    return
+            else:
+                while self._pending_rows >= self.max_pending_rows and self.error is None:
+                    self._cond.wait()
+            self._pending.append(rows)
+            self._pending_rows += len(rows)
+            if not self.live and self._pending_rows >= self.take_rows:
+                self._cond.notify_all()
+        self._raise()
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        """Write what is queued, finish the file; raises the failure if ``raise_errors``."""
+        with self._cond:
+            self._closing = True
+            self._cond.notify_all()
+        self._thread.join()
+        self._raise()
+
+    def _raise(self) -> None:
+        if self.broken_pipe and self.raise_errors:
+            raise BrokenPipeError
+        if self.error is not None and self.raise_errors:
+            from bench.errors import BenchError
+
+            raise BenchError(self.error)
+
+    # -- the writer thread -------------------------------------------------------------------
+    def _take(self) -> tuple[list[np.ndarray], bool]:
+        """Wait for work; returns the rows to convert now and whether this is the end."""
+        with self._cond:
+            if self.live:
+                if not self._closing:
+                    self._cond.wait(LIVE_INTERVAL_S)
+            else:
+                while self._pending_rows < self.take_rows and not self._closing:
+                    self._cond.wait()
+            parts, self._pending, self._pending_rows = self._pending, [], 0
+            self._cond.notify_all()  # a waiting producer may go on
+            return parts, self._closing
+
+    def _run(self) -> None:
+        """Rows become Arrow batches as they arrive (as compact as the numpy rows, so a
+        chunk waiting for its row group costs one copy of it); whole chunks are written."""
+        if self._cpus:
+            from devices.cpu_placement import pin_thread
+
+            pin_thread(self._cpus)
+        buffered: list[pa.RecordBatch] = []
+        n_buffered = 0
+        while True:
+            parts, end = self._take()
+            if self.error is not None:
+                self._lost_write += sum(len(p) for p in parts) + n_buffered
+                buffered, n_buffered = [], 0
+            else:
+                for rows in parts:
+                    try:
+                        buffered.append(self.layout.batch(rows))
+                        n_buffered += len(rows)
+                    except Exception as exc:
+                        self._fail(exc, len(rows))
+                while n_buffered >= self.chunk_rows or (n_buffered and (end or self.live)):
+                    table = pa.Table.from_batches(buffered)
+                    take = min(self.chunk_rows, n_buffered)
+                    self._write(table.slice(0, take))
+                    rest = table.slice(take)
+                    buffered, n_buffered = rest.to_batches(), rest.num_rows
+            if end:
+                break
+        try:
+            self.file.close()
+        except Exception as exc:  # the last bytes and the footer can fail too
+            self._fail(exc, 0)
+
+    def _write(self, table: pa.Table) -> None:
+        if self.error is not None:
+            self._lost_write += table.num_rows
+            return
+        try:
+            self.file.write(table)
+            self.rows += table.num_rows
+        except Exception as exc:
+            self._fail(exc, table.num_rows)
+
+    def _fail(self, exc: Exception, rows: int) -> None:
+        self._lost_write += rows
+        if isinstance(exc, BrokenPipeError):
+            self.broken_pipe = True
+        if self.error is None:
+            why = describe_os_error(exc) if isinstance(exc, OSError) else repr(exc)
+            self.errno = (exc.errno or 0) if isinstance(exc, OSError) else 0
+            self.error = f"{self.path}: cannot write the {self.kind}: {why}"
+        with self._cond:
+            self._cond.notify_all()
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "kind": self.kind,
+            "rows": self.rows,
+            "rows_lost": self.rows_lost,
+            "error": self.error,
+        }
+
+
+def csv_sink(
+    target: str | Path, *, live: bool = False, raise_errors: bool | None = None, **kw: Any
+) -> TableSink:
+    """The results CSV of a replay (``live=False``) or a live run, path checked first."""
+    check_output_file(target, "CSV")
+    cpus = None
+    if live:
+        from devices.cpu_placement import other_cpus
+
+        cpus = other_cpus()
+    return TableSink(
+        _open(CsvFile, target, "CSV", **kw),
+        live=live,
+        raise_errors=not live if raise_errors is None else raise_errors,
+        cpus=cpus,
+        kind="CSV",
+    )
+
+
+def parquet_sink(
+    target: str | Path, metadata: dict[str, str] | None = None, **kw: Any
+) -> TableSink:
+    """The results Parquet file of a replay, path checked first."""
+    check_output_file(target, "Parquet file")
+    return TableSink(
+        _open(ParquetFile, target, "Parquet file", metadata=metadata, **kw),
+        chunk_rows=PARQUET_ROW_GROUP,
+        raise_errors=True,
+        kind="Parquet file",
+    )
+
+
+def _open(cls: type, target: str | Path, what: str, **kw: Any) -> Any:
+    from bench.errors import BenchError
+
+    try:
+        return cls(target, **kw)
+    except OSError as exc:
+        raise BenchError(f"{target}: cannot write the {what}: {describe_os_error(exc)}") from None
+
+
+def results_metadata(config: object, source: str) -> dict[str, str]:
+    """File-level metadata of a results Parquet file: the calibration (as TOML, as `--config`
+    reads it) and where it came from, the source log, the bench version."""
+    from bench import __version__
+
+    return {
+        "bench.version": __version__,
+        "bench.source": str(source),
+        "bench.calibration": config.to_toml(),  # type: ignore[attr-defined]
+        "bench.calibration_source": config.describe(),  # type: ignore[attr-defined]
+    }
