@@ -301,6 +301,18 @@ def wire(frames: np.ndarray) -> list[tuple[int, int, bytes]]:
     ]
 
 
+RECEIVE_TIME = "utc"
+"""The CSV column of a frame's receive time: when it crossed the bus, so not in an emulator's
+file (empty there), and candump's log has it to the microsecond only."""
+
+
+def columns_without(csv_text: str, *names: str) -> list[list[str]]:
+    """The CSV's cells, row by row, without the columns ``names``."""
+    rows = [line.split(",") for line in csv_text.splitlines()]
+    drop = {rows[0].index(name) for name in names}
+    return [[v for k, v in enumerate(r) if k not in drop] for r in rows]
+
+
 def replay_csv(log: Path, out: Path, *config: Any) -> str:
     extra: Iterable[Any] = ("--config", *config) if config else ()
     assert bench_main("replay", log, "--csv", out, "-q", *extra) == 0
