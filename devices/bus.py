@@ -10,6 +10,7 @@ opened itself, a reopen with backoff and a "reconnect" notice.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -285,11 +286,19 @@ class CanBusSource(LiveSource):
         if config is None:  # a bus we were handed cannot be rebuilt here
             time.sleep(max(0.0, timeout))
             return SourceBatch()
-        self._bus = self.reconnector.attempt(timeout, lambda: open_bus(config))
+        opened_at = [math.nan]
+
+        def reopen() -> can.BusABC:
+            opened_at[0] = time.time()
+            return open_bus(config)
+
+        self._bus = self.reconnector.attempt(timeout, reopen)
         if self._bus is None:
             return SourceBatch()
         self._opened = True
-        return SourceBatch(notices=[SourceNotice(time.time(), "reconnect", self.description)])
+        # stamped when the new socket was opened: every frame it receives comes after it
+        notice = SourceNotice(opened_at[0], "reconnect", self.description)
+        return SourceBatch(notices=[notice])
 
     def close(self) -> None:
         if self._closed:

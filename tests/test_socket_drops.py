@@ -166,3 +166,45 @@ def test_the_tui_bus_line_shows_the_kernel_drops() -> None:
     runner.pipeline = pipe
     bus = [line for line in board_lines(runner.snapshot()).plain.splitlines() if "bus" in line]
     assert bus and "kdrop 12" in bus[0]
+
+
+def test_stop_waits_for_the_sinks_to_close_even_past_the_acquisition_timeout() -> None:
+    """A slow close (a backlog, the MCAP summary on a loaded machine) must finish before
+    stop() returns: the process would otherwise end with an unfinished log."""
+    import time
+
+    from bench.live.runner import LiveRunner
+
+    class _Idle:
+        description = "idle"
+
+        def read(self, timeout: float) -> SourceBatch:
+            time.sleep(timeout)
+            return SourceBatch()
+
+        def close(self) -> None:
+            pass
+
+    class _SlowSink:
+        closed = False
+
+        def write(self, step: object) -> None:
+            pass
+
+        def mark(self, t: float, text: str) -> None:
+            pass
+
+        def close(self) -> None:
+            time.sleep(1.0)
+            self.closed = True
+
+    sink = _SlowSink()
+    runner = LiveRunner(_Idle(), Config(), [sink])  # type: ignore[arg-type, list-item]
+    runner.start()
+    runner.stop(timeout=0.1)
+    assert sink.closed and runner.error is None
+    late = _SlowSink()
+    runner = LiveRunner(_Idle(), Config(), [late])  # type: ignore[arg-type, list-item]
+    runner.start()
+    runner.stop(timeout=0.1, close_timeout=0.2)
+    assert not late.closed and "may be unfinished" in str(runner.error)
