@@ -10,13 +10,12 @@ behind it, so every command prints that and every log and record stores it.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bench.errors import ConfigError
-from devices.textfile import read_text_file
+from devices.textfile import parse_toml, read_text_file
 from devices.tomlcheck import error, is_integer, is_number, number_problem, to_float
 from protocol.layout import (
     DEFAULT_BASE,
@@ -131,14 +130,34 @@ def _number(
     *,
     lo_open: bool = False,
     integer: bool = False,
+    hi: float | None = None,
+    why: str = "",
 ) -> float:
+    """A number within [lo, hi] (lo exclusive with lo_open); ``why`` says where the bound
+    comes from in the error message."""
     if not (is_integer(value) if integer else is_number(value)):
         kind = "an integer" if integer else "a number"
         raise error(source, path, f"expected {kind}, got {value!r}")
-    problem = number_problem(to_float(value), lo, lo_open=lo_open)
+    problem = number_problem(to_float(value), lo, hi, lo_open=lo_open)
     if problem:
-        raise error(source, path, problem)
+        raise error(source, path, problem + (f" ({why})" if why else ""))
     return value
+
+
+ESTIMATOR_MAX: dict[str, float] = {
+    "residual_limit_mps2": 100.0,
+    "residual_window_s": 10.0,
+    "stuck_window_s": 60.0,
+    "recover_s": 3600.0,
+    "standstill_s": 3600.0,
+    "coast_s": 60.0,
+    "speed_noise_mps": 100.0,
+    "jerk_psd": 1e6,
+    "a_ref_sigma_mps2": 100.0,
+    "clock_drift_ppm": 1e6,
+}
+"""Largest sensible value of each estimator setting: windows are held in memory as
+samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""
 
 
 def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
@@ -153,6 +172,16 @@ def _table(where: str, value: Any, allowed: set[str]) -> dict[str, Any]:
         )
     return value
 
+
+MIN_SAMPLE_RATE_HZ, MAX_SAMPLE_RATE_HZ = 50, 1000
+"""The ADC sample rates the ICD allows (section 1)."""
+MAX_SCALE = 1e-3
+"""Largest channel scale, m/s^2 per LSB (full scale 2^23 LSB would be 8 400 m/s^2)."""
+CODE_LIMIT = float(1 << 23)
+"""Largest offset magnitude, LSB: a 24-bit two's complement code."""
+MIN_ANGLE_APART_DEG = 5.0
+"""Closest two channel angles may be: the ICD mounts them 30 deg apart; at 5 deg a pair's
+gradient already amplifies sensor noise 11-fold, near 0 it is singular."""
 
 ORIGINS = ("nominal", "file", "scenario", "plan")
 """Where a calibration comes from: the ICD's nominal values, a calibration file, an emulated
@@ -198,15 +227,21 @@ def config_from_dict(
         _number(source, "board.base_id", board.get("base_id", DEFAULT_BASE), integer=True)
     )
     if not 0 <= base_id <= 0x7FC or base_id <= 0x180 < base_id + 4:
-        raise error(source, "board.base_id", f"0x{base_id:X} is not a usable 11-bit base")
+        raise error(
+            source,
+            "board.base_id",
+            f"0x{base_id:X} is not a usable 11-bit base (must be 0..0x7FC with "
+            "BASE..BASE+3 clear of SPEED_REF 0x180)",
+        )
     rate = int(
         _number(
             source,
             "board.sample_rate_hz",
             board.get("sample_rate_hz", DEFAULT_SAMPLE_RATE_HZ),
-            0,
-            lo_open=True,
+            MIN_SAMPLE_RATE_HZ,
             integer=True,
+            hi=MAX_SAMPLE_RATE_HZ,
+            why=f"the ICD's ADC rates are {MIN_SAMPLE_RATE_HZ}..{MAX_SAMPLE_RATE_HZ} Hz",
         )
     )
     chans = data.get("channels", [])
@@ -221,19 +256,53 @@ def config_from_dict(
         angle = _number(source, f"{where}.angle_deg", ch.get("angle_deg", default_angle))
         if not -90.0 < angle < 90.0:
             raise error(source, f"{where}.angle_deg", f"must lie in (-90, 90) deg, got {angle!r}")
-        scale = _number(source, f"{where}.scale", ch.get("scale", NOMINAL_SCALE), 0, lo_open=True)
-        offset = _number(source, f"{where}.offset", ch.get("offset", 0.0))
+        scale = _number(
+            source,
+            f"{where}.scale",
+            ch.get("scale", NOMINAL_SCALE),
+            0,
+            lo_open=True,
+            hi=MAX_SCALE,
+            why="m/s^2 per LSB; nominal 2.34e-6",
+        )
+        offset = _number(
+            source,
+            f"{where}.offset",
+            ch.get("offset", 0.0),
+            -CODE_LIMIT,
+            hi=CODE_LIMIT,
+            why="LSB of a 24-bit code",
+        )
         cals.append(ChannelCal(float(angle), float(scale), float(offset)))
     angles = [c.angle_deg for c in cals]
-    if len(set(angles)) < 3:
-        raise error(source, "channels", f"the three angle_deg values must differ, got {angles}")
+    for i, j in ((0, 1), (1, 2), (0, 2)):
+        apart = abs(angles[i] - angles[j])
+        if not apart >= MIN_ANGLE_APART_DEG:
+            raise error(
+                source,
+                "channels",
+                f"ch{i + 1} and ch{j + 1} angle_deg must be at least {MIN_ANGLE_APART_DEG:g} deg "
+                f"apart (each pair's gradient divides by sin(theta_i - theta_j)), got "
+                f"{angles[i]!r} and {angles[j]!r}",
+            )
     fusion = _table(f"{source}: fusion", data.get("fusion", {}), {"g", "tolerance_permil"})
-    g = _number(source, "fusion.g", fusion.get("g", G0), 0, lo_open=True)
-    tol = _number(source, "fusion.tolerance_permil", fusion.get("tolerance_permil", 1.0), 0)
+    g = _number(
+        source, "fusion.g", fusion.get("g", G0), 1.0, hi=20.0, why="m/s^2; 9.80665 on Earth"
+    )
+    tol = _number(
+        source,
+        "fusion.tolerance_permil",
+        fusion.get("tolerance_permil", 1.0),
+        0,
+        hi=1000.0,
+        why="permil",
+    )
     est_defaults = asdict(EstimatorSettings())
     est = _table(f"{source}: estimator", data.get("estimator", {}), set(est_defaults))
     est_values = {
-        k: float(_number(source, f"estimator.{k}", est.get(k, v), 0, lo_open=True))
+        k: float(
+            _number(source, f"estimator.{k}", est.get(k, v), 0, lo_open=True, hi=ESTIMATOR_MAX[k])
+        )
         for k, v in est_defaults.items()
     }
     return Config(
@@ -254,9 +323,5 @@ def load_config(path: str | Path | None) -> Config:
     if path is None:
         return Config()
     p = Path(path)
-    text = read_text_file(p, "config")
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    data = parse_toml(read_text_file(p, "config"), str(p))
     return config_from_dict(data, source=p.name, path=str(p))

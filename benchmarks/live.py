@@ -321,10 +321,11 @@ def _take_engine_report(run: LiveRun, session: Any, board: dict[str, Any]) -> No
     run.drain_s = board["drain_s"]
     run.snapshot_p99_ms = float(board["snapshot_latency_ms"][1])
     run.received, run.dropped = report.frames_received, report.frames_dropped
-    status = report.last_status or {}
-    run.mcap_dropped = int(status.get("dropped", 0)) + int(status.get("lost", 0))
-    if status.get("error"):
-        run.errors.append(f"mcap: {status['error']}")
+    status = report.last_status
+    if status is not None:
+        run.mcap_dropped = status.dropped + status.lost
+        if status.error:
+            run.errors.append(f"mcap: {status.error}")
     if report.error:
         run.errors.append(report.error)
     run.errors += [f"engine: {p}" for p in report.problems]

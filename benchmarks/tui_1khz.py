@@ -143,12 +143,13 @@ def _collect(out: TuiRun, session: Any, path: Path) -> None:
         return
     out.received, out.processed = report.frames_received, report.frames_processed
     out.runner_dropped = report.frames_dropped
-    status = report.last_status or {}
-    out.log_dropped = int(status.get("dropped", 0)) + int(status.get("lost", 0))
+    status = report.last_status
+    if status is not None:
+        out.log_dropped = status.dropped + status.lost
     if report.error:
         out.errors.append(report.error)
-    if status.get("error"):
-        out.errors.append(f"mcap: {status['error']}")
+    if status is not None and status.error:
+        out.errors.append(f"mcap: {status.error}")
     out.errors += [f"engine: {p}" for p in report.problems]
     with McapLog(path) as log:
         frames, _, _ = log.read_frames()

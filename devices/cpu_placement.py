@@ -9,7 +9,7 @@ without the TUI and 3.4-3.9 ms with it; with the live threads on one CPU and the
 screen on the other, 0.3-0.4 ms and 0.4-0.8 ms (docs/BENCHMARKS.md).
 
 ``BENCH_LIVE_CPU`` chooses: ``auto`` (default; the highest CPU this process may use, when it
-may use two or more), a CPU number, or ``off`` (the scheduler decides, as before). A second
+may use two or more), a CPU number, or ``off`` (no pinning: the scheduler decides). A second
 bench on the same machine should be given another CPU.
 """
 

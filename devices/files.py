@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import stat
 import struct
 import zlib
 from collections.abc import Iterator
@@ -26,7 +27,7 @@ from typing import Any
 
 import can
 import numpy as np
-from can.io.blf import OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
+from can.io.blf import FILE_HEADER_SIZE, OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
 
 from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
@@ -41,11 +42,20 @@ SUFFIXES = (".log", *CAN_LOGREADER_SUFFIXES, ".bin")
 
 
 def check_readable(path: Path) -> int:
-    """Size of a readable regular file, else a one-line BenchError naming it."""
+    """Size of a readable regular file, else a one-line BenchError naming it.
+
+    A FIFO, a device (/dev/zero) or a socket is refused: a replay reads ahead, seeks and
+    reports progress against the size, and /dev/zero never ends."""
     try:
         if path.is_dir():
             raise BenchError(f"cannot read log {path}: is a directory")
-        size = path.stat().st_size
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise BenchError(
+                f"cannot read log {path}: not a regular file ({_file_kind(st.st_mode)}); "
+                "copy the recording to a file first"
+            )
+        size = st.st_size
         with path.open("rb"):
             pass
     except FileNotFoundError as exc:
@@ -53,6 +63,18 @@ def check_readable(path: Path) -> int:
     except OSError as exc:
         raise cannot_read(path, exc) from exc
     return size
+
+
+def _file_kind(mode: int) -> str:
+    for test, name in (
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
+        if test(mode):
+            return name
+    return "not a file"
 
 
 def unknown_extension(path: Path, known: tuple[str, ...]) -> BenchError:
@@ -100,6 +122,11 @@ class _GuardedBLFReader(BLFReader):
         yield from super()._parse_data(data)
 
 
+_CSV_HEADER = "timestamp,arbitration_id,extended,remote,error,dlc,data"
+"""The header line python-can's CSVWriter writes and its CSVReader skips unread."""
+_RESULTS_CSV_START = "time_s,counter,"
+"""How a bench results CSV (bench.replay.CsvSink) begins."""
+
 _READERS = {".blf": _GuardedBLFReader}
 _READER_DEFAULTS: dict[str, dict[str, Any]] = {".asc": {"relative_timestamp": False}}
 """ASC times are absolute (from the file's start date) like every other format's."""
@@ -120,6 +147,7 @@ class CanLogReaderSource(DiskFileSource):
 
     def _open(self) -> can.io.generic.MessageReader:
         """Open the reader now, so a file that is not this format fails at open time."""
+        self._check_format()
         cls = _READERS.get(self.path.suffix.lower())
         try:
             if cls is not None:
@@ -127,6 +155,33 @@ class CanLogReaderSource(DiskFileSource):
             return can.LogReader(self.path, **self._kwargs)
         except Exception as exc:  # python-can raises struct.error, ValueError, Unicode...
             raise BenchError(f"cannot read log {self.path}: {one_line(exc)}") from exc
+
+    def _check_format(self) -> None:
+        """What python-can would misreport: an empty or cut BLF ("unpack requires a buffer
+        of 72 bytes"), a CSV that is not python-can's ("too many values to unpack")."""
+        suffix = self.path.suffix.lower()
+        if suffix == ".blf" and self._size < FILE_HEADER_SIZE:
+            what = "empty file" if self._size == 0 else f"{self._size} bytes"
+            raise BenchError(
+                f"cannot read log {self.path}: not a BLF log ({what}; a BLF file starts with "
+                f"a {FILE_HEADER_SIZE}-byte header)"
+            )
+        if suffix == ".csv":
+            try:
+                with self.path.open("rb") as f:
+                    head = f.readline(4096).decode("utf-8", "replace").strip()
+            except OSError as exc:
+                raise cannot_read(self.path, exc) from exc
+            if self._size and head != _CSV_HEADER:
+                hint = (
+                    " (a bench results CSV: replay the run's .mcap)"
+                    if head.startswith(_RESULTS_CSV_START)
+                    else ""
+                )
+                raise BenchError(
+                    f"cannot read log {self.path}: not a python-can CSV log{hint}: its header "
+                    f"is {head[:60]!r}, expected {_CSV_HEADER!r}"
+                )
 
     def _tell(self, reader: can.io.generic.MessageReader) -> None:
         f = getattr(reader, "file", None)

@@ -7,10 +7,14 @@ key (``channels[2].angle_deg``), so the operator sees which key of which file is
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Iterable
 from typing import Any
 
 from devices.errors import ConfigError
+
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffe\uffff]")
+"""Characters refused in text values (tab, newline and carriage return are fine)."""
 
 _TYPE_NAMES = {
     bool: "boolean",
@@ -149,6 +153,12 @@ class Table:
         v = self.raw(key, default)
         if not isinstance(v, str):
             raise self.error(key, f"expected a string, got {tname(v)} {v!r}")
+        bad = _CONTROL.search(v)
+        if bad:
+            # they reach terminals, HTML and junit.xml, where XML 1.0 cannot carry them
+            raise self.error(
+                key, f"control character U+{ord(bad.group()):04X} not allowed in a text value"
+            )
         return v
 
     def choice(self, key: str, default: Any = None, *, choices: tuple[Any, ...]) -> Any:

@@ -40,13 +40,3 @@ def frames_from_raw(frames: Iterable[RawFrame]) -> np.ndarray:
     padded = b"".join(bytes(f.data[:8]).ljust(8, b"\0") for f in rows)
     out["data"] = np.frombuffer(padded, dtype=np.uint8).reshape(-1, 8)
     return out
-
-
-def raw_from_frames(frames: np.ndarray) -> list[RawFrame]:
-    """Unpack a FRAME_DTYPE array into RawFrames (the inverse of frames_from_raw for dlc <= 8)."""
-    return [
-        RawFrame(
-            float(r["t"]), int(r["id"]), bytes(r["data"][: min(int(r["dlc"]), 8)]), int(r["flags"])
-        )
-        for r in frames
-    ]

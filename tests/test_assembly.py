@@ -6,8 +6,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bench.pipeline.assembly import SCALAR_MAX, Assembler
+from bench.pipeline.assembly import Assembler
 from bench.records.events import EventKind
+from bench.records.twins import ASSEMBLY_FRAMES as SCALAR_MAX
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
 from tests.helpers import adc, instant, pack, status_frame
@@ -169,7 +170,9 @@ def test_unknown_id_and_wrong_dlc_are_events():
 
 # -- chunk independence: the live (frame by frame) and replay (big batch) paths agree -----
 
-fault = st.sampled_from(["ok", "ok", "ok", "drop", "dup", "swap", "crc", "flag", "late", "jitter"])
+fault = st.sampled_from(
+    ["ok", "ok", "ok", "drop", "dup", "swap", "crc", "flag", "late", "jitter", "t_off", "ts_off"]
+)
 
 
 @st.composite
@@ -180,6 +183,7 @@ def faulty_stream(draw):
     for k in range(n):
         frames += instant(k, codes=(k, 2 * k, 3 * k), counter0=240)
     out: list[RawFrame] = []
+    clock = 0.0
     held: list[tuple[int, RawFrame]] = []  # (frames to wait, frame): arrives after its window
     for f in frames:
         what = draw(fault)
@@ -202,6 +206,17 @@ def faulty_stream(draw):
             d = f.data
             ts = (d[5] | d[6] << 8) + draw(st.integers(-20, 20))
             f = adc(f.can_id - 0x100, d[0], d[1] | d[2] << 8 | d[3] << 16, ts, f.t, d[4])
+        if what == "ts_off" and f.can_id != 0x100:  # a wild board time (bench.pipeline.timeline)
+            d = f.data
+            ts = (d[5] | d[6] << 8) + draw(st.sampled_from([-30000, 5000, 30000]))
+            f = adc(f.can_id - 0x100, d[0], d[1] | d[2] << 8 | d[3] << 16, ts, f.t, d[4])
+        if what == "t_off":  # a wild receive time
+            f = RawFrame(
+                f.t + draw(st.sampled_from([-7.5, 3.0, 1e15, float("nan")])), f.can_id, f.data
+            )
+        f = RawFrame(f.t + clock, f.can_id, f.data)
+        if draw(st.integers(0, 40)) == 0:  # the host clock steps from here on
+            clock += draw(st.sampled_from([5.0, -5.0, 3000.0]))
         out.append(f)
         if what == "dup":
             out.append(f)

@@ -90,6 +90,7 @@ def test_emulator_log_with_its_sheet_replays_like_its_mcap_with_the_recorded_one
     )
     recorded = recorded_config(mcap)
     assert recorded is not None and recorded.origin == "scenario"
+    assert read_metadata(mcap)["run"]["calibration"] == "scenario level3.toml as built"
     assert recorded.describe() == "recorded in run.mcap (scenario level3.toml as built)"
     a, b = tmp_path / "mcap.csv", tmp_path / "log.csv"
     assert main(["replay", str(mcap), "--csv", str(a)]) == 0

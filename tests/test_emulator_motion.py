@@ -7,6 +7,7 @@ test_emulator_realism.py."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -58,3 +59,20 @@ def test_jerk_limited_motion_invariants(ph: list[TrainPhase], v0: float, jerk: f
     m = train_motion(ph_t, v0, 0.0, t)
     assert np.abs(v_step - m.speed_mps).max() < 1e-3
     assert np.abs(x_step - m.position_m).max() < 1e-2
+
+
+def test_a_stop_is_exactly_zero_so_the_next_phase_does_not_reverse() -> None:
+    """Backwards at 3 m/s, +1 m/s^2 for 3.34375 s (through zero: allowed) leaves +0.34375
+    m/s; braking at -1.2 m/s^2 without reversing stops the train after 0.2865 s, and the
+    next braking phase must leave it standing (a rounding residue of -5e-17 m/s once read
+    as 'running backwards' and let it reverse to -1.2 m/s)."""
+    ph = (
+        TrainPhase(duration_s=3.34375, accel_mps2=1.0, allow_reverse=True),
+        TrainPhase(duration_s=1.0, accel_mps2=-1.2, allow_reverse=False),
+        TrainPhase(duration_s=1.0, accel_mps2=-1.2, allow_reverse=False),
+    )
+    t = np.array([3.34375, 3.34375 + 0.34375 / 1.2, 4.5, 5.34375, 9.0])
+    m = train_motion(ph, -3.0, 0.0, t)
+    assert m.speed_mps[0] == pytest.approx(0.34375)
+    assert abs(m.speed_mps[1]) < 1e-12  # the stop instant, within a rounding residue
+    assert m.speed_mps[2:].tolist() == [0.0, 0.0, 0.0]

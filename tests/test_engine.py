@@ -23,9 +23,10 @@ import pytest
 
 from bench.config import Config
 from bench.engine.child import RowTap
-from bench.engine.client import EngineSession, ResultRing, start_engine
+from bench.engine.client import EngineSession, start_engine
 from bench.engine.plans import BoardPlan, EnginePlan
 from bench.errors import BenchError
+from bench.live.view import ResultRing
 from bench.pipeline.steps import StepOutput
 from bench.records.results import RESULT_DTYPE
 
@@ -214,8 +215,8 @@ def test_engine_killed_the_screen_says_so_and_nothing_hangs(tmp_path: Path, engi
 def test_sigterm_to_the_engine_finishes_the_log_reports_and_exits(
     tmp_path: Path, engine: Any
 ) -> None:
-    """SIGTERM is also how multiprocessing ends a daemon child when its parent exits: the
-    engine must not wait for a request then."""
+    """SIGTERM (a system shutdown, an operator's kill) stops the run on its own: the engine
+    must not wait for a request then."""
     plan = board_plan(tmp_path)
     session = engine(plan)
     until(lambda: session.snapshot(last=1).frames_received > 100, what="frames")

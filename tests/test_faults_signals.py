@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from bench.mcaplog.schemas import RESULT_TOPIC
+
 ROOT = Path(__file__).resolve().parent.parent
 
 SCENARIO = """
@@ -53,6 +55,9 @@ def wait_for_data(path: Path, proc: subprocess.Popen, timeout: float = 20.0) -> 
             pytest.fail(f"bench exited early with {proc.returncode}")
         with contextlib.suppress(OSError):
             size = path.stat().st_size
+            if size == 0:  # created (and locked) before the writer wrote its header
+                time.sleep(0.05)
+                continue
             first = size if first is None else first
             if size > first + 8192:
                 return
@@ -163,3 +168,44 @@ def test_tui_signalled_finishes_the_log(tmp_path: Path, scenario: Path, sig: int
             proc.wait()
         os.close(master)
     assert_finished(mcap)
+
+
+@pytest.mark.parametrize("writer", ["process", "thread"])
+def test_run_hung_up_ends_like_sigterm(tmp_path: Path, scenario: Path, writer: str) -> None:
+    """SIGHUP (the terminal closed, an ssh session dropped) ends `bench run` like SIGTERM:
+    the summary is printed, the MCAP is finished and the CSV has every result it has."""
+    mcap, csv = tmp_path / "run.mcap", tmp_path / "run.csv"
+    env = {**os.environ, "BENCH_LOG_WRITER": writer}
+    proc = subprocess.Popen(
+        bench_cmd(
+            "run",
+            "--emulate",
+            str(scenario),
+            "--mcap",
+            str(mcap),
+            "--csv",
+            str(csv),
+            "--duration",
+            "60",
+        ),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        wait_for_data(mcap, proc)
+        proc.send_signal(signal.SIGHUP)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err and "summary" in err.replace("run on", "summary")
+    assert "log written" in err
+    info = log_info(mcap)
+    assert info["complete"] and not info["truncated"], info.get("warnings")
+    rows = len(csv.read_text().splitlines()) - 1
+    results = info["topics"][RESULT_TOPIC]
+    assert rows == results > 0

@@ -92,6 +92,36 @@ def _candump(frames: np.ndarray) -> str:
     return format_candump(frames).decode()
 
 
+def candump_unclamped(frames: np.ndarray) -> str:
+    """candump text with every receive time as stamped (python-can's writer, which ours
+    copies, clamps times earlier than the first frame to it)."""
+    lines = _candump(frames).splitlines()
+    first = frames["t"][0]
+    for i in np.flatnonzero(frames["t"] < first).tolist():
+        lines[i] = f"({frames['t'][i]:.6f})" + lines[i][lines[i].index(")") + 1 :]
+    return "\n".join(lines) + "\n"
+
+
+def time_axis_glitches(frames: np.ndarray) -> dict[str, np.ndarray]:
+    """Copies of ``frames`` with one receive-time or board-time glitch each."""
+    adc = np.flatnonzero((frames["id"] >= 0x101) & (frames["id"] <= 0x103))
+    mid, at = adc[len(adc) // 2], len(frames) // 2
+    early = frames.copy()
+    early["t"][mid] -= 7.5
+    step5, step3000 = frames.copy(), frames.copy()
+    step5["t"][at:] += 5.0
+    step3000["t"][at:] += 3000.0
+    wild = frames.copy()
+    ts = (int(wild["data"][mid, 5]) | int(wild["data"][mid, 6]) << 8) + 30000
+    wild["data"][mid, 5:7] = (ts & 0xFF, (ts >> 8) & 0xFF)
+    return {
+        "rx_time_early": early,
+        "clock_step_5s": step5,
+        "clock_step_3000s": step3000,
+        "wild_board_time": _reseal(wild),
+    }
+
+
 def build_corpus(d: Path) -> dict[str, Path]:
     rng = np.random.default_rng(8)
     frames = _frames()
@@ -160,6 +190,11 @@ def build_corpus(d: Path) -> dict[str, Path]:
         bad_t.append(line)
     files["huge_timestamps.log"] = "\n".join(bad_t) + "\n"
 
+    # the time axis (issue 16): one frame stamped 7.5 s early, host clock steps, a CRC-valid
+    # frame whose board time jumps +3 s
+    for name, damaged in time_axis_glitches(frames).items():
+        files[f"{name}.log"] = candump_unclamped(damaged)
+
     # wrong-endian values: payload fields byte-swapped, CRC resealed (so they decode)
     swapped = frames.copy()
     swapped["data"][:, 1:4] = swapped["data"][:, 3:0:-1]
@@ -170,8 +205,11 @@ def build_corpus(d: Path) -> dict[str, Path]:
     files["wrong_endian_ids.log"] = _candump(_reseal(be_ids))
 
     # MCAP: truncated at every kind of place, unfinished, swapped record lengths
-    for cut in (8, 9, 20, 100, len(mcap) // 3, len(mcap) // 2, len(mcap) - 40, len(mcap) - 1):
-        files[f"truncated_{cut}.mcap"] = mcap[:cut]
+    # (named by place, not offset: the run metadata's length differs between processes)
+    cuts = {"8": 8, "9": 9, "20": 20, "100": 100, "third": len(mcap) // 3}
+    cuts |= {"half": len(mcap) // 2, "end-40": len(mcap) - 40, "end-1": len(mcap) - 1}
+    for label, cut in cuts.items():
+        files[f"truncated_{label}.mcap"] = mcap[:cut]
     first_len_at = 8 + 1  # the Header record's length field (u64 little-endian)
     swapped_len = bytearray(mcap)
     length = struct.unpack_from("<Q", swapped_len, first_len_at)[0]
@@ -304,3 +342,27 @@ def replay_count(frames: np.ndarray, path: Path) -> int:
 
     write_candump(path, frames)
     return len(replay(open_replay(path), Config(), collect=True).results)
+
+
+@pytest.mark.parametrize(
+    "glitch", ["rx_time_early", "clock_step_5s", "clock_step_3000s", "wild_board_time"]
+)
+def test_time_axis_glitch_costs_no_samples(tmp_path: Path, glitch: str) -> None:
+    """The hostile round's numbers: 1310 / 1311 / 600 310 phantom lost samples, 1499 good
+    frames 'late'. Now: every sample of a 5 s, 200 Hz log (3 300 frames), none lost, none
+    late, the glitch one counted event (a wild board time costs its one frame)."""
+    from bench.config import Config
+    from bench.replay.run import replay
+    from bench.replay.sources import open_replay
+
+    frames = _frames(5.0)
+    frames["t"] += 1.7e9
+    path = tmp_path / f"{glitch}.log"
+    path.write_text(candump_unclamped(time_axis_glitches(frames)[glitch]))
+    out = replay(open_replay(path), Config(), collect=True)
+    stats = out.pipeline.stats
+    assert stats.frames == len(frames) == 3300
+    assert len(out.results) == 1000 and stats.samples_lost == 0
+    assert sum(c.late for c in stats.channels) == 0
+    assert sum(c.gaps for c in stats.channels) == (1 if glitch == "wild_board_time" else 0)
+    assert (stats.outliers, stats.clock_steps) == ((0, 1) if "step" in glitch else (1, 0))

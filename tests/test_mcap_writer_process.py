@@ -132,7 +132,7 @@ def test_unwritable_path_is_an_error_not_an_exception(tmp_path: Path) -> None:
     sink.close()
     assert sink.frames_logged == 0
     assert sink.frames_lost == frames
-    assert sink.status()["error"] == sink.error
+    assert sink.status().error == sink.error
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")

@@ -17,6 +17,7 @@ from bench.pipeline.steps import Pipeline, StepOutput
 from bench.records.events import EventKind
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
+from protocol.crc import frame_crc8_batch
 from protocol.records import FLAG_EXTENDED
 
 FAULTS = [
@@ -59,6 +60,17 @@ def faulty_frames(rate: int, seed: int) -> np.ndarray:
     junk["flags"][20:] = FLAG_EXTENDED  # the board's id, but an extended frame
     frames = np.insert(frames, np.sort(rng.integers(0, len(frames), 30)), junk)
     frames["t"][rng.integers(0, len(frames), 4)] = [np.nan, np.inf, 0.0, 1e15]
+    # the time axis: a host clock step, a frame stamped early, a CRC-valid wild board time
+    frames["t"][len(frames) // 3 :] += 5.0
+    adc_rows = np.flatnonzero((frames["id"] >= 0x101) & (frames["id"] <= 0x103))
+    frames["t"][adc_rows[len(adc_rows) // 2]] -= 7.5
+    wild = adc_rows[2 * len(adc_rows) // 3]
+    ts = (int(frames["data"][wild, 5]) | int(frames["data"][wild, 6]) << 8) + 30000
+    frames["data"][wild, 5:7] = (ts & 0xFF, (ts >> 8) & 0xFF)
+    data = np.ascontiguousarray(frames["data"][wild : wild + 1])
+    frames["data"][wild, 7] = frame_crc8_batch(
+        frames["id"][wild : wild + 1].astype(np.int64), data
+    )[0]
     return frames
 
 
@@ -129,5 +141,8 @@ def test_any_batching_gives_the_same_bytes(rate: int, seed: int) -> None:
         EventKind.VOTE_FAIL,
         EventKind.EXCLUDED,
         EventKind.BOARD_STATE,
+        EventKind.OUTLIER,
+        EventKind.TIME_OUTLIER,
+        EventKind.CLOCK_STEP,
     }
     assert len(joined(ref_steps, "results")) > 0.9 * rate * 6.0

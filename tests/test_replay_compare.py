@@ -42,9 +42,9 @@ def test_compare_with_a_plan_gives_validity_and_every_verdict_both_ways_in_80_co
     lines = out.splitlines()
     assert lines[0].startswith("before: ") and lines[1].startswith("after: ")  # (a long path)
     assert max(len(line) for line in lines[2:]) <= 80
-    # before/after, title + blank + header + rule, 9 figures, blank, 9 checks, blank, the
+    # before/after, title + blank + header + rule, 10 figures, blank, 9 checks, blank, the
     # plan, blank, the compare line: no row wrapped onto a second line
-    assert len(lines) == 2 + 4 + 9 + 1 + 9 + 1 + 1 + 1 + 1
+    assert len(lines) == 2 + 4 + 10 + 1 + 9 + 1 + 1 + 1 + 1
     assert out.count("would this run have passed") == 1  # one table
     table = rows(out)
     assert table["angles ch1/ch2/ch3, deg"] == ["30/0/-30", "30.3/0/-30"]

@@ -34,7 +34,7 @@ def test_a_stopped_file_gets_nothing_more_and_is_closed_once() -> None:
     rec.finish(old)
     rec.finish(old)
     assert first.closes == 1
-    assert rec.last_status is not None and rec.last_status["path"] == "a.mcap"
+    assert rec.last_status is not None and rec.last_status.path == "a.mcap"
     assert rec.start().name == "b.mcap"
     rec.write(step(2))
     rec.close()

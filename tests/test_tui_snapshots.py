@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.live.runner import Snapshot
 from bench.live.session import Session
+from bench.live.view import Snapshot
+from bench.sinks.base import RecordingStatus
 from bench.tui.app import BenchApp
 from protocol.layout import STATUS_SELFTEST
 from tests.test_tui_support import T0, make_frames, settled_snapshot
@@ -37,12 +38,12 @@ def fixed(tail: np.ndarray, *, excluded: int = 0, signed: float = 20.0) -> Snaps
         res["excluded"][bad] = excluded
         res["residual"][bad] = 0.0007
     snap.source = "virtual board demo.toml"
-    snap.recording = {
-        "path": "logs/20231114T221320Z-emu-demo.mcap",
-        "frames": snap.frames_received,
-        "bytes": 48_213,
-        "duration_s": 2.0,
-    }
+    snap.recording = RecordingStatus(
+        path="logs/20231114T221320Z-emu-demo.mcap",
+        frames=snap.frames_received,
+        bytes=48_213,
+        duration_s=2.0,
+    )
     snap.extra["frames_sent"] = snap.frames_received
     assert snap.events and snap.events[0][0] >= T0  # times come from the frames, not the clock
     return snap

@@ -14,7 +14,9 @@ from collections.abc import Iterator, Sequence
 import numpy as np
 
 from bench.config import Config
-from bench.live.runner import LiveRunner, Snapshot
+from bench.live.runner import LiveRunner
+from bench.live.view import Snapshot
+from bench.sinks.base import RecordingStatus
 from devices.base import FileSource, LiveSource, SourceBatch
 from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
@@ -162,8 +164,8 @@ class FakeSink:
     def close(self) -> None:
         self.closed = True
 
-    def status(self) -> dict[str, object]:
-        return {"path": self.path, "frames": self.frames, "bytes": 1000 + self.frames * 20}
+    def status(self) -> RecordingStatus:
+        return RecordingStatus(path=self.path, frames=self.frames, bytes=1000 + self.frames * 20)
 
 
 class NoEstimator:

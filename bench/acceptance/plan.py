@@ -10,7 +10,6 @@ The format is documented in docs/ACCEPTANCE.md.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -20,7 +19,7 @@ from bench.acceptance.checks.registry import KINDS
 from bench.acceptance.signoff import DUT_KEYS, Dut
 from bench.config import Config, config_from_dict
 from bench.errors import ConfigError
-from devices.textfile import path_or_packaged, read_text_file
+from devices.textfile import parse_toml, path_or_packaged, read_text_file
 from devices.tomlcheck import Table, tname
 
 PLAN_DIR = Path(__file__).resolve().parent.parent / "plans"
@@ -292,7 +291,7 @@ def _scenario(top: Table, value: Any, plan_dir: Path | None) -> tuple[Any, dict 
         except ConfigError as exc:
             raise top.error("scenario", str(exc)) from None
         sc = load_scenario(path)
-        return sc, tomllib.loads(read_text_file(path, "scenario")), str(path)
+        return sc, parse_toml(read_text_file(path, "scenario"), str(path)), str(path)
     raise top.error("scenario", f"expected a [scenario] table or a file name, got {tname(value)}")
 
 
@@ -301,10 +300,7 @@ def _scenario(top: Table, value: Any, plan_dir: Path | None) -> tuple[Any, dict 
 
 def parse_plan(text: str, file: str = "<plan>", path: Path | None = None) -> Plan:
     """Validate plan TOML text into a Plan; ConfigError naming ``file`` and the key."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{file}: not valid TOML: {exc}") from None
+    data = parse_toml(text, file)
     top = Table(file, "", data)
     top.done(_TOP)
     if not top.has("plan"):

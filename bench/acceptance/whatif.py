@@ -104,6 +104,12 @@ def _pct(count: int, total: int) -> str:
     return f"{100.0 * count / total:.2f} %" if total else "-"
 
 
+def _available(side: Side) -> str:
+    """Share of results with a gradient from the bench's estimator."""
+    res = side.results
+    return _pct(int(np.count_nonzero(np.isfinite(res["gradient_signed"]))), len(res))
+
+
 def _short_value(m: Measurement) -> str:
     if m.value is None or not np.isfinite(m.value):
         return m.verdict.upper()
@@ -153,6 +159,7 @@ def comparison_table(
             _pct(b.vote_failures[k], b.samples),
             _pct(a.vote_failures[k], a.samples),
         )
+    table.add_row("estimator gradient available", _available(before), _available(after))
     table.add_row("degraded (estimator)", _pct(b.degraded, b.samples), _pct(a.degraded, a.samples))
     table.add_row("results differing", "-", f"{rows_differing} rows", end_section=True)
     if plan is None:

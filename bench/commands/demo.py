@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import devices
+from bench.commands.argtypes import SPEED
 from bench.config_choice import announce, live_config, scenario_config
 from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
 from bench.mcaplog.foxglove_stream import add_foxglove_arguments
@@ -37,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="another scenario file or built-in name (default: the demo)",
     )
     p.add_argument(
-        "--speed", type=float, default=1.0, help="emulator time factor (default 1 = real time)"
+        "--speed", type=SPEED, default=1.0, help="emulator time factor (default 1 = real time)"
     )
     p.add_argument(
         "--config", help="calibration config (TOML); default: the scenario board's calibration"

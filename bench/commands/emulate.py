@@ -131,7 +131,13 @@ def _write_out(sim: Any, out: str) -> str:
     path = Path(out)
     config = scenario_config(sim.scenario)
     try:
-        counts = write_emulation(path, sim, sim.scenario.path or None, config=config)
+        counts = write_emulation(
+            path,
+            sim,
+            sim.scenario.path or None,
+            config=config,
+            metadata={"calibration": config.describe()},
+        )
     except OSError as exc:
         raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
     return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {path}"

@@ -77,7 +77,18 @@ def run_info(args: argparse.Namespace) -> int:
             f"bench: warning: {info['warnings'][0] if info['warnings'] else 'truncated file'}",
             file=sys.stderr,
         )
+    bench_topics = {t for t in info["topics"] if t.startswith(_OUR_TOPIC_PREFIXES)}
+    if info["topics"] and not bench_topics:
+        print(
+            f"bench: error: {args.file}: no bench topics in this MCAP file (expected "
+            f"/can/frames, /bench/...; it holds {', '.join(sorted(info['topics'])[:6])})",
+            file=sys.stderr,
+        )
+        return 2
     return 1 if args.verify and info.get("crc_problems") else 0
+
+
+_OUR_TOPIC_PREFIXES = ("/can/", "/uart/", "/source/", "/bench/", "/emulator/")
 
 
 def _open_out(stack: ExitStack, target: str) -> TextIO:
@@ -96,8 +107,8 @@ def run_export(args: argparse.Namespace) -> int:
     what = "candump log" if args.candump else "CSV" if args.csv else "Parquet file"
     check_output_file(target, what)  # before reading anything
     with McapLog(args.file) as lg, ExitStack() as stack:
-        if lg.truncated:
-            print(f"bench: warning: {lg.truncation}", file=sys.stderr)
+        for warning in dict.fromkeys(lg.warnings):
+            print(f"bench: warning: {warning}", file=sys.stderr)
         if args.candump:
             fh = _open_out(stack, args.candump)
             frames, errors, _ = lg.read_frames()

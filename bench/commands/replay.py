@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
+from pathlib import Path
 from typing import Any
 
 from rich.console import Console
@@ -20,7 +21,6 @@ from rich.progress import (
 from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
-from bench.replay.run import replay
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
 
@@ -69,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from bench.replay.run import replay  # the pipeline only for this command, not every CLI start
     from bench.replay.sources import open_replay
     from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
 
@@ -86,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
         from bench.acceptance.plan import load_plan
 
         plan = load_plan(args.plan)
+    if str(args.input).lower().endswith(".mcap"):
+        from devices.files import check_readable
+
+        check_readable(Path(args.input))  # before its recorded config is read: not a FIFO
     config = replay_config(args.config, args.input)
     source = open_replay(args.input)
     if not args.quiet:  # plain lines: a console width must not break them

@@ -9,15 +9,18 @@ import sys
 import threading
 import time
 from types import FrameType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from bench.commands.argtypes import SECONDS
 from bench.config_choice import announce, live_config
-from bench.errors import BenchError
-from bench.live.runner import LiveRunner, Snapshot
 from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.live.view import Snapshot
 from bench.mcaplog.foxglove_stream import open_stream
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
+
+if TYPE_CHECKING:
+    from bench.live.runner import LiveRunner
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,12 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a status line; log every frame and result to MCAP.",
     )
     add_live_arguments(p)
-    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--duration", type=SECONDS, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
     p.add_argument(
         "--status-every",
-        type=float,
+        type=SECONDS,
         metavar="S",
         help="print the status line every S seconds (default 0.5 on a terminal, else 5)",
     )
@@ -51,8 +54,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     gaps = sum(c.gaps for c in st.channels)
     kdrop = f" kdrop {st.socket_drops}" if st.socket_drops else ""
     rec = ""
-    if s.recording:
-        rec = f" log {s.recording.get('frames', 0)}f"
+    if s.recording is not None:
+        rec = f" log {s.recording.frames or 0}f"
     if s.output_errors:  # a secondary output (the CSV, the live stream) has failed
         rec += " CSV FAILED" if any("CSV" in e for e in s.output_errors) else " OUTPUT FAILED"
     return (
@@ -63,9 +66,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    every = args.status_every
-    if every is not None and not (math.isfinite(every) and every > 0):
-        raise BenchError(f"--status-every must be a positive number of seconds, got {every!r}")
+    from bench.live.runner import LiveRunner  # the pipeline only for this command
     # from the first moment: a signal at any point ends the run with a finished log
     stop = threading.Event()
     signalled: list[int] = []
@@ -74,7 +75,10 @@ def run(args: argparse.Namespace) -> int:
         signalled.append(signum)  # a second signal while shutting down changes nothing
         stop.set()
 
-    old_handlers = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    # SIGHUP (terminal closed, ssh dropped) like SIGTERM: its default would kill the run
+    # before the summary, the CSV's last rows and the MCAP's summary section
+    ends = [signal.SIGTERM, signal.SIGINT, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
+    old_handlers = {sig: signal.signal(sig, on_signal) for sig in ends}
     try:
         if args.csv:
             check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
@@ -126,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     runner.recording = recording
     start = time.monotonic()
     tty = sys.stderr.isatty()
-    every = every if every is not None else (0.5 if tty else 5.0)
+    every = args.status_every if args.status_every is not None else (0.5 if tty else 5.0)
     last_print = 0.0
     runner.start()
     setup.start_board()

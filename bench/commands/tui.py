@@ -5,12 +5,15 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bench.config import Config
 from bench.config_choice import announce, live_config, replay_config, replay_hint
 from bench.errors import BenchError
 from bench.live.setup import DEFAULT_LOG_DIR, add_live_arguments
+
+if TYPE_CHECKING:
+    from bench.live.view import SessionLike
 
 SPEED_CHOICES = {"1": 1.0, "1x": 1.0, "10": 10.0, "10x": 10.0, "max": None}
 
@@ -59,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     return show(session)
 
 
-def show(session: Any, **app_kwargs: Any) -> int:
+def show(session: SessionLike, **app_kwargs: Any) -> int:
     """The screen on a built session; the logs written are listed however it ends."""
     from bench.tui.run import run_tui
 
@@ -75,7 +78,7 @@ def replay_extras(args: argparse.Namespace, config: Config, log_dir: Path) -> di
     marks the log recorded (an MCAP file), for "run to the next mark"."""
     from bench.live.session import live_session, replay_setup
 
-    def restart(paused: bool) -> Any:
+    def restart(paused: bool) -> SessionLike:
         speed = SPEED_CHOICES[args.speed]
         return live_session(
             replay_setup(args.replay, config, speed=speed, paused=paused), config, None, log_dir
@@ -103,7 +106,7 @@ def recorded_marks(path: Path) -> list[tuple[float, str]]:
     ]
 
 
-def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
+def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> SessionLike:
     """Source, pipeline and log in the engine process: the screen never holds up the run."""
     from bench.engine.client import start_engine
     from bench.engine.plans import LivePlan, cli_values
@@ -112,7 +115,7 @@ def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     return start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
 
 
-def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
+def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> SessionLike:
     """A log replayed in this process (no latency to keep there)."""
     from bench.live.session import live_session, replay_setup
 
@@ -137,15 +140,14 @@ def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Any:
     return live_session(setup, config, first, log_dir)
 
 
-def report(session: object) -> None:
+def report(session: SessionLike) -> None:
     """After the screen closes: which logs were written, and any error the run hit (and what
     the engine process printed meanwhile, which would have scribbled over the screen)."""
-    output = getattr(getattr(session, "report", None), "output", "")
+    engine_report = getattr(session, "report", None)  # an engine session's, once stopped
+    output = getattr(engine_report, "output", "")
     if output:
         sys.stderr.write(output if output.endswith("\n") else output + "\n")
-    rec = getattr(session, "recorder", None)
-    for path in getattr(rec, "files", []):
+    for path in session.recorder.files:
         print(f"bench: log written: {path}", file=sys.stderr)
-    runner = getattr(session, "runner", None)
-    if runner is not None and runner.error:
-        print(f"bench: error: {runner.error}", file=sys.stderr)
+    if session.error:
+        print(f"bench: error: {session.error}", file=sys.stderr)

@@ -24,22 +24,18 @@ import tempfile
 import threading
 import traceback
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench.engine.plans import EnginePlan
-from bench.live.runner import HISTORY
+from bench.engine.wire import SIGNALS, EngineReport
+from bench.live.view import HISTORY
 from bench.pipeline.steps import StepOutput
 from bench.records.arrays import concat_records
 from bench.records.results import RESULT_DTYPE
 
-SIGNALS = tuple(
-    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
-)
-"""Blocked while the parent starts the child, so none arrives before the child's handlers."""
 SLOW_OPS = frozenset({"rec_finish", "plan"})
 OUTPUT_TAIL = 8000
 
@@ -77,23 +73,6 @@ class RowTap:
 
     def close(self) -> None:
         pass
-
-
-@dataclass
-class EngineReport:
-    """What the parent learns when the run is over."""
-
-    error: str | None
-    frames_received: int
-    frames_dropped: int
-    frames_processed: int
-    files: list[Path]
-    last_status: dict[str, Any] | None
-    board: dict[str, int] | None
-    stats: dict[str, Any]
-    problems: list[str] = field(default_factory=list)  # thread exceptions, ERROR log records
-    output: str = ""  # what the engine process wrote to stdout/stderr while the screen ran
-    plan: dict[str, Any] = field(default_factory=dict)
 
 
 def portable(exc: BaseException) -> BaseException:
@@ -140,7 +119,7 @@ class ProblemLog(logging.Handler):
 
 
 def child_main(conn: Any, plan: EnginePlan) -> None:
-    """The engine process's entry point (a multiprocessing target)."""
+    """Run the engine in this process (started by :mod:`bench.engine.entry`)."""
     for sig in SIGNALS:
         signal.signal(sig, signal.SIG_IGN)  # until the run exists; then SIGTERM stops it
     if hasattr(signal, "pthread_sigmask"):

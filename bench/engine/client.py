@@ -5,11 +5,12 @@ thread of a run in the same process waits behind it (frame-to-result latency p99
 with the TUI attached against ~10 ms without). In the engine process the source, the
 in-process board, the LiveRunner and the MCAP writer keep a GIL of their own.
 
-:func:`start_engine` starts the engine ("spawn": the parent has threads, and python-can's
-virtual bus only connects buses inside one process, so board and source both live there)
-from a plan (:mod:`bench.engine.plans`) and returns an :class:`EngineSession`, which offers
-the App exactly the API of :class:`bench.live.session.Session`. Snapshots bring only the
-results new since the last one; the history ring is kept here.
+:func:`start_engine` starts the engine (a fresh interpreter, :mod:`devices.child_process`:
+the parent has threads, and python-can's virtual bus only connects buses inside one
+process, so board and source both live there), sends it a plan (:mod:`bench.engine.plans`)
+and returns an :class:`EngineSession`, which offers
+the App the same :class:`bench.live.view.SessionLike` as :class:`bench.live.session.Session`.
+Snapshots bring only the results new since the last one; the history ring is kept here.
 """
 
 from __future__ import annotations
@@ -18,23 +19,23 @@ import contextlib
 import dataclasses
 import itertools
 import math
-import multiprocessing
 import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
-from multiprocessing import resource_tracker
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from bench.config import Config
-from bench.engine.child import SIGNALS, EngineReport, child_main
 from bench.engine.plans import EnginePlan
-from bench.live.runner import HISTORY, ResultRing, Snapshot
+from bench.engine.wire import SIGNALS, EngineReport
+from bench.live.view import HISTORY, ReplayControl, ResultRing, Snapshot
 from bench.pipeline.stats import Stats
 from bench.records.results import RESULT_DTYPE
+from bench.sinks.base import RecordingStatus
+from devices.child_process import end_child, start_child, wait_child
 from devices.cpu_placement import other_cpus, pin_thread, restore_thread
 
 READY_TIMEOUT_S = 300.0
@@ -168,7 +169,7 @@ class RemoteRecorder:
         self._active = bool(hello["recording"])
         self._can_start = bool(hello["can_start"])
         self.files: list[Path] = [Path(p) for p in hello["files"]]
-        self.last_status: dict[str, Any] | None = None
+        self.last_status: RecordingStatus | None = None
 
     @property
     def active(self) -> bool:
@@ -218,12 +219,11 @@ class RemoteRecorder:
 
 
 class EngineSession:
-    """A live run in the engine process, as the TUI sees it (see :class:`Session`)."""
+    """A live run in the engine process, as the TUI sees it (a :class:`SessionLike`)."""
 
     mode = "live"
-    replay = None
-    fixed = None
-    setup = None
+    replay: ReplayControl | None = None  # a live run has no transport
+    controllable = True
 
     def __init__(self, process: Any, conn: Any, hello: dict[str, Any], config: Config) -> None:
         self.pid = int(hello["pid"])
@@ -242,6 +242,14 @@ class EngineSession:
         # CPU until stop(): a screen drawing there delays acquisition (cpu_placement)
         self._placement = pin_thread(other_cpus())
         self._channel = _Channel(conn, self._on_gone, self._finish)
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return float(self.runner.config.sample_rate_hz)
+
+    @property
+    def error(self) -> str | None:
+        return self.runner.error
 
     # -- requests --------------------------------------------------------------------------
     def call(self, op: str, *args: Any, **kwargs: Any) -> Any:
@@ -348,15 +356,14 @@ class EngineSession:
         self.recorder.update(False, False)
 
     def _reap(self) -> None:
-        _end_process(self._process, 10.0)
+        end_child(self._process, 10.0)
         self._channel.close()
 
     def _on_gone(self) -> None:
         """The engine's pipe closed: expected after ``stop`` or its report, else a failure."""
         if self.stopping or self.report is not None:
             return
-        self._process.join(2.0)
-        code = self._process.exitcode
+        code = wait_child(self._process, 2.0)
         self.runner.error = self.runner.error or (
             f"the engine process ended unexpectedly (exit code {code})"
         )
@@ -385,15 +392,11 @@ def start_engine(
 ) -> EngineSession:
     """Start the engine on ``plan`` and wait until its run is going. What goes wrong while
     building (no such bus, log folder unusable) is raised here as the engine raised it."""
-    ctx = multiprocessing.get_context("spawn")
-    conn, child_conn = ctx.Pipe(duplex=True)
-    proc = ctx.Process(target=child_main, args=(child_conn, plan), name="bench-engine", daemon=True)
-    # started first: starting it later would unblock SIGINT and SIGTERM in the mask below
-    resource_tracker.ensure_running()
-    with _signals_blocked():
-        proc.start()
-    child_conn.close()
+    with _signals_blocked():  # the engine inherits the mask and unblocks them itself
+        conn, proc = start_child("bench.engine.entry")
     try:
+        with contextlib.suppress(OSError):  # an engine that ended already: see below why
+            conn.send(plan)
         kind, *rest = _first_message(conn, proc, ready_timeout)
     except BaseException:
         _abandon(proc, conn)
@@ -409,16 +412,16 @@ def start_engine(
 def _first_message(conn: Any, proc: Any, timeout: float) -> tuple[Any, ...]:
     deadline = time.monotonic() + timeout
     while not conn.poll(0.2):
-        if not proc.is_alive() and not conn.poll(0):
+        if proc.poll() is not None and not conn.poll(0):
             break
         if time.monotonic() > deadline:
             raise TimeoutError(f"the engine process was not ready within {timeout:g} s")
     try:
         return tuple(conn.recv())
     except (EOFError, OSError):
-        proc.join(2.0)
+        code = wait_child(proc, 2.0)
         raise EngineGone(
-            f"the engine process ended before it was ready (exit code {proc.exitcode})"
+            f"the engine process ended before it was ready (exit code {code})"
         ) from None
 
 
@@ -427,14 +430,4 @@ def _abandon(proc: Any, conn: Any) -> None:
     make sure the process is gone."""
     with contextlib.suppress(OSError):
         conn.close()
-    _end_process(proc, 30.0)
-
-
-def _end_process(proc: Any, grace_s: float) -> None:
-    """Wait ``grace_s`` for the process to end by itself, then terminate, then kill it."""
-    proc.join(grace_s)
-    for end in (proc.terminate, proc.kill):
-        if proc.exitcode is not None:
-            break
-        end()
-        proc.join(5.0)
+    end_child(proc, 30.0)

@@ -13,66 +13,20 @@ import queue
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from bench.config import Config
-from bench.pipeline.stats import Stats
-from bench.pipeline.steps import Pipeline, StepOutput
-from bench.records.arrays import concat_records
+from bench.live.view import HISTORY, ResultRing, Snapshot
+from bench.pipeline.steps import Pipeline, StepOutput, merge_batches
 from bench.records.events import EventKind, describe, make_events
-from bench.records.results import RESULT_DTYPE
 from bench.sinks.base import Sink
 from devices.base import LiveSource, SourceBatch
 from devices.cpu_placement import live_cpus, pin_thread
 
 MAX_COALESCE = 512
 """Queued source batches merged into one pipeline step at most."""
-HISTORY = 60_000
-"""Results kept for the UI (5 min at 200 Hz, 1 min at 1 kHz)."""
-
-
-def merge_batches(parts: list[SourceBatch]) -> SourceBatch:
-    """One batch holding the parts' frames, link errors and notices, in arrival order."""
-    if len(parts) == 1:
-        return parts[0]
-    return SourceBatch(
-        concat_records([p.frames for p in parts]),
-        [e for p in parts for e in p.link_errors],
-        [n for p in parts for n in p.notices],
-    )
-
-
-class ResultRing:
-    """The last ``size`` results, oldest first: the history a UI draws from (the runner's,
-    and the engine's parent's, fed by the rows each snapshot brings)."""
-
-    def __init__(self, size: int) -> None:
-        self._buf = np.zeros(size, dtype=RESULT_DTYPE)
-        self._pos = 0
-        self._len = 0
-
-    def __len__(self) -> int:
-        return self._len
-
-    def extend(self, rows: np.ndarray) -> None:
-        size = len(self._buf)
-        rows = rows[-size:]
-        k = len(rows)
-        first = min(k, size - self._pos)
-        self._buf[self._pos : self._pos + first] = rows[:first]
-        self._buf[: k - first] = rows[first:]
-        self._pos = (self._pos + k) % size
-        self._len = min(size, self._len + k)
-
-    def last(self, k: int) -> np.ndarray:
-        k = max(0, min(k, self._len))
-        start = (self._pos - k) % len(self._buf)
-        if start + k <= len(self._buf):
-            return self._buf[start : start + k].copy()
-        return np.concatenate([self._buf[start:], self._buf[: self._pos]])
 
 
 class LatencyRing:
@@ -99,31 +53,6 @@ class LatencyRing:
     def values(self) -> np.ndarray:
         """A copy of the values kept (order does not matter for percentiles)."""
         return self._buf[: min(self._n, len(self._buf))].copy()
-
-
-@dataclass
-class Snapshot:
-    """A consistent copy of the run's state for a UI; cheap enough to take at a few Hz."""
-
-    wall: float
-    source: str
-    running: bool
-    results: np.ndarray  # the last HISTORY results, oldest first
-    stats: Stats
-    events: list[tuple[float, int, str]]  # (receive time, EventKind, text), newest last
-    board: np.void | None
-    speed: np.void | None
-    frames_received: int
-    frames_dropped: int
-    queue_depth: int
-    queue_max: int
-    tolerance_permil: float
-    latency_ms: tuple[float, float]  # p50, p99 of frame-to-result latency over the recent window
-    recording: dict[str, Any] | None
-    error: str | None = None
-    marks: int = 0
-    extra: dict[str, Any] = field(default_factory=dict)
-    output_errors: list[str] = field(default_factory=list)  # failed secondary outputs (CSV)
 
 
 CLOSE_TIMEOUT_S = 120.0
@@ -202,11 +131,6 @@ class LiveRunner:
     def add_sink(self, sink: Sink) -> None:
         with self._lock:
             self._sinks.append(sink)
-
-    def remove_sink(self, sink: Sink) -> None:
-        with self._lock:
-            if sink in self._sinks:
-                self._sinks.remove(sink)
 
     def set_tolerance(self, permil: float) -> None:
         self.pipeline.tolerance_permil = max(0.0, float(permil))

@@ -1,15 +1,16 @@
 """What the TUI drives: a running LiveRunner, its source, the MCAP recorder, replay controls.
 
-The App only ever calls these methods and :meth:`Session.snapshot`; it never touches the
-runner's threads. Building a Session (which source, which log file) is the commands' job,
-so the App can be tested with a fixed snapshot and no runner at all. A live ``bench tui`` or
-``bench demo`` builds its Session in the engine process and the App drives it through
-:class:`bench.engine.client.EngineSession`, which has this same API.
+The App talks to it only through :class:`bench.live.view.SessionLike`; it never touches
+the runner's threads. Building a Session (which source, which log file) is the commands'
+job, so the App can be tested with a fixed snapshot and no runner at all. A live
+``bench tui`` or ``bench demo`` builds its Session in the engine process and the App drives
+it through :class:`bench.engine.client.EngineSession`, the other SessionLike.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -18,11 +19,12 @@ from pathlib import Path
 from typing import Any
 
 from bench.config import Config
-from bench.live.runner import HISTORY, LiveRunner, Snapshot
+from bench.live.runner import LiveRunner
 from bench.live.setup import DEFAULT_LOG_DIR, LiveSetup, default_log_path, start_recording
+from bench.live.view import HISTORY, Snapshot
 from bench.pipeline.steps import StepOutput
 from bench.replay.player import ReplaySource, ReplayTap
-from bench.sinks.base import Sink
+from bench.sinks.base import RecordingStatus, Sink
 
 
 class Recorder:
@@ -40,7 +42,7 @@ class Recorder:
         self._start_lock = threading.Lock()
         self._sink: Any = sink
         self._closed = False
-        self.last_status: dict[str, Any] | None = None  # of the last file, once stopped
+        self.last_status: RecordingStatus | None = None  # of the last file, once stopped
         self.files: list[Path] = []
         self._started = time.time()  # wall time the current file was opened
         self._pending: dict[int, Any] = {}  # detached, not yet being closed
@@ -112,23 +114,20 @@ class Recorder:
         try:
             sink.close()
             with contextlib.suppress(Exception):
-                self.last_status = sink_status(sink)
-                self.last_status.setdefault("duration_s", duration)
+                self.last_status = with_duration(recording_status(sink), duration)
         finally:
             done.set()
             with self._lock:
                 self._closing.pop(id(sink), None)
 
-    def status(self) -> dict[str, Any] | None:
+    def status(self) -> RecordingStatus | None:
         s = self._sink
         if s is None:
             return None
         try:
-            status = sink_status(s)
-            status.setdefault("duration_s", time.time() - self._started)
-            return status
+            return with_duration(recording_status(s), time.time() - self._started)
         except Exception as exc:  # the UI must survive a sink that cannot report
-            return {"path": str(getattr(s, "path", "?")), "error": repr(exc)}
+            return RecordingStatus(path=str(getattr(s, "path", "?")), error=repr(exc))
 
     # -- Sink -----------------------------------------------------------------------------
     def write(self, step: StepOutput) -> None:
@@ -157,26 +156,33 @@ class Recorder:
             done.wait(60.0)
 
 
-def sink_status(sink: Any) -> dict[str, Any]:
-    """A recording's figures: its ``status()`` dict, else its McapSink counters."""
+def recording_status(sink: Any) -> RecordingStatus:
+    """A recording's figures: its ``status()``, else its McapSink-style counters."""
     fn = getattr(sink, "status", None)
     if callable(fn):
-        return dict(fn())
-    out: dict[str, Any] = {"path": str(getattr(sink, "path", "?"))}
-    for key, attr in (
-        ("frames", "frames_logged"),
-        ("bytes", "bytes_written"),
-        ("dropped", "dropped"),
-        ("error", "error"),
-    ):
-        if hasattr(sink, attr):
-            out[key] = getattr(sink, attr)
-    return out
+        status = fn()
+        if not isinstance(status, RecordingStatus):
+            raise TypeError(f"{type(sink).__name__}.status() returned {type(status).__name__}")
+        return status
+    return RecordingStatus(
+        path=str(getattr(sink, "path", "?")),
+        frames=getattr(sink, "frames_logged", None),
+        bytes=getattr(sink, "bytes_written", None),
+        dropped=getattr(sink, "dropped", 0),
+        error=getattr(sink, "error", None),
+    )
+
+
+def with_duration(status: RecordingStatus, duration_s: float) -> RecordingStatus:
+    """The status with its duration, unless the sink reported one itself."""
+    if status.duration_s is not None:
+        return status
+    return dataclasses.replace(status, duration_s=duration_s)
 
 
 @dataclass
 class Session:
-    """A live or replay run as the TUI sees it."""
+    """A live or replay run in this process, as the TUI sees it (a :class:`SessionLike`)."""
 
     runner: LiveRunner | None
     recorder: Recorder = field(default_factory=Recorder)
@@ -209,6 +215,18 @@ class Session:
     @property
     def mode(self) -> str:
         return "replay" if self.replay is not None else "live"
+
+    @property
+    def controllable(self) -> bool:
+        return self.runner is not None
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return float(self.runner.config.sample_rate_hz) if self.runner is not None else 1000.0
+
+    @property
+    def error(self) -> str | None:
+        return self.runner.error if self.runner is not None else None
 
     def start(self) -> None:
         if self.runner is not None and not self._started:

@@ -179,6 +179,10 @@ def start_recording(path: Path, setup: LiveSetup, config: Config) -> Any:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise BenchError(f"cannot create log folder {path.parent}: {exc.strerror or exc}") from None
+    from bench.mcaplog.file import check_writable
+
+    if problem := check_writable(path):
+        raise BenchError(f"cannot write the MCAP log {path}: {problem}")
     attachments: list[tuple[str, bytes]] = []
     if config.path is not None and Path(config.path).is_file():
         attachments.append((Path(config.path).name, Path(config.path).read_bytes()))

@@ -1,5 +1,5 @@
 """Recorded replay inputs back into what a source yields: raw-frame records to FRAME_DTYPE
-rows, JSON link errors and notices to their records, recorded events to EVENT_DTYPE rows."""
+rows, JSON link errors and notices to their records."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ from typing import Any
 
 import numpy as np
 
-from bench.records.events import EVENT_DTYPE
 from devices.base import SourceNotice
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.layout import Outcome
@@ -55,17 +54,3 @@ def notice_from_json(m: bytes | memoryview) -> SourceNotice:
         str(d.get("detail", "")),
         int(d.get("count") or 0),  # absent in logs written before it existed
     )
-
-
-def events_from_json(objs: list[dict[str, Any]]) -> np.ndarray:
-    """EVENT_DTYPE rows of recorded foxglove.Log events (marks included)."""
-    out = np.zeros(len(objs), dtype=EVENT_DTYPE)
-    for i, d in enumerate(objs):
-        out[i] = (
-            json_float(d.get("t")),
-            d.get("kind", 0),
-            d.get("channel", 0),
-            d.get("n", -1),
-            d.get("value", 0),
-        )
-    return out

@@ -21,13 +21,21 @@ An unfinished file is still readable chunk by chunk (:mod:`bench.mcaplog.reader`
 from __future__ import annotations
 
 import contextlib
+import errno
 import itertools
+import os
 import struct
 import zlib
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import BinaryIO
+
+try:
+    import fcntl
+except ImportError:  # Windows: no advisory locks; a second writer is not detected
+    fcntl = None  # type: ignore[assignment]
 
 import numpy as np
 from mcap.data_stream import RecordBuilder
@@ -76,6 +84,48 @@ def _media_type(name: str) -> str:
     }.get(suffix, "application/octet-stream")
 
 
+def open_exclusive(path: Path) -> BinaryIO:
+    """``path`` opened for writing from byte 0, locked against a second writer: a second
+    run given the same ``--mcap`` path is refused before it truncates the first run's file
+    (the lock is advisory, so other programs are not stopped; it is released on close)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o666)
+    try:
+        if fcntl is not None:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise OSError(
+                    errno.EBUSY, "another bench run is writing this file (choose another --mcap)"
+                ) from None
+        os.ftruncate(fd, 0)
+        return open(fd, "wb")  # the caller owns it; tests wrap this module's open
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def check_writable(path: Path) -> str:
+    """Why ``path`` cannot be written as a new log ("" when it can), found before a run
+    starts: a folder, a read-only place, or a file another run is writing. Leaves an
+    existing file's content alone."""
+    if path.is_dir():
+        return "it is a folder"
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o666)
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    try:
+        if fcntl is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return "another bench run is writing this file (choose another --mcap)"
+    except OSError:
+        pass  # a file system without locks: the writer finds out for itself
+    finally:
+        os.close(fd)
+    return ""
+
+
 def utc_now() -> str:
     return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
@@ -106,7 +156,9 @@ class McapFile:
         self.chunk_size = chunk_size
         self.compression = compression
         self._compress = _compressor(compression)
-        self._fh = open(self.path, "wb")  # noqa: SIM115 - owned until finish()/abort()
+        self._fh = open_exclusive(self.path)
+        st = os.fstat(self._fh.fileno())
+        self._identity = (st.st_dev, st.st_ino)
         self.position = 0
         self._crc = 0
         self._schemas: list[Schema] = []
@@ -384,6 +436,22 @@ class McapFile:
         self._write(MAGIC)
         self._fh.close()
         self.closed = True
+        if problem := self.vanished():
+            raise OSError(errno.ENOENT, problem)
+
+    def vanished(self) -> str:
+        """Why the file written is no longer at ``path`` ("" while it is): deleted, or
+        replaced by another file, during the run. Its data is then out of reach, which a
+        run must say loudly instead of "log written"."""
+        try:
+            st = os.stat(self.path)
+        except FileNotFoundError:
+            return "the log file was deleted during the run: what was written to it is lost"
+        except OSError:
+            return ""
+        if (st.st_dev, st.st_ino) != self._identity:
+            return "the log file was replaced by another file during the run"
+        return ""
 
     def abort(self) -> None:
         """Close the file without a summary (after a write error): what is there stays

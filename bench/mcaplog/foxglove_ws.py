@@ -194,7 +194,4 @@ def foxglove_sink_class() -> type:
             self.path = Path(stream_label(self.host, ws.port))
             return ws
 
-        def status(self) -> dict[str, Any]:
-            return {**super().status(), "port": self.port}
-
     return FoxgloveSink

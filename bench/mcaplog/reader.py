@@ -40,6 +40,7 @@ from bench.mcaplog.structure import (
     OP_ATTACHMENT,
     OP_CHANNEL,
     OP_CHUNK,
+    OP_CHUNK_INDEX,
     OP_DATA_END,
     OP_FOOTER,
     OP_HEADER,
@@ -60,12 +61,14 @@ from bench.mcaplog.structure import (
     read_statistics,
     read_str,
     walk_chunk,
+    walk_records,
 )
 from devices.base import SourceBatch, SourceNotice
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 
-log = logging.getLogger("bench.mcaplog")
+log = logging.getLogger("bench.mcaplog.reader")
+log.addHandler(logging.NullHandler())  # the commands report ``warnings`` themselves, once
 
 
 class McapLog:
@@ -103,11 +106,19 @@ class McapLog:
         self.scan_end = 0  # end of the last complete record of the data section
         self.warnings: list[str] = []
         self.bad_chunks: list[tuple[ChunkInfo, str]] = []
+        self.damage: list[str] = []  # what the scan stepped over (see _resync)
+        self.lost_frames = 0  # frames in the damage, from the summary's statistics
+        self._index_len: dict[int, int] = {}  # chunk offset -> record length, from the summary
+        self._sum_schemas: dict[int, SchemaInfo] = {}
+        self._sum_channels: dict[int, ChannelInfo] = {}
+        self._summary_problem = ""
         self._zstd: Any = None
         try:
             self._scan()
             if self.data_end is not None:
                 self._read_footer()
+            elif self._sum_channels or self.chunks:
+                self._definitions_from_chunks()
         except BaseException:
             self.close()
             raise
@@ -142,6 +153,13 @@ class McapLog:
                 return ch.id
         return None
 
+    def foreign_topics(self, ours: set[str] | None = None) -> list[str]:
+        """The file's topics when it has some but none of ``ours`` (default: the topics a
+        replay reads): an MCAP file of something else, which must not read as empty."""
+        ours = ours or {S.FRAME_TOPIC, S.LINK_ERROR_TOPIC, S.NOTICE_TOPIC}
+        topics = sorted({ch.topic for ch in self.channels.values()})
+        return topics if topics and ours.isdisjoint(topics) else []
+
     def metadata_dict(self) -> dict[str, dict[str, str]]:
         out: dict[str, dict[str, str]] = {}
         for name, data in self.metadata:
@@ -156,6 +174,10 @@ class McapLog:
 
     # -- scanning --------------------------------------------------------------------------
     def _scan(self) -> None:
+        """Walk the data section record by record. A record that cannot be read ends the
+        walk (an unfinished file), unless the summary's chunk index says where the next
+        chunk starts: then the walk skips there (or reads the damaged chunk with the
+        index's length) and the skip is counted in ``damage``."""
         mm = self._mm
         size = self.size
         if size < len(MAGIC) or bytes(mm[:8]) != MAGIC:
@@ -165,9 +187,12 @@ class McapLog:
                 self.warnings.append(self.truncation)
                 return
             raise McapReadError(f"{self.path}: not an MCAP file (bad magic)")
+        self._peek_summary()
         pos = len(MAGIC)
         u_bq = struct.Struct("<BQ").unpack_from
         last_chunk: ChunkInfo | None = None
+        loose: list[int] | None = None  # [start, end] of a run of unchunked messages
+        repaired: set[int] = set()
         reason = ""
         cut_op = 0
         while True:
@@ -179,50 +204,49 @@ class McapLog:
                 break
             op, length = u_bq(mm, pos)
             end = pos + 9 + length
+            bad = ""
             if end > size:
                 name = OP_NAMES.get(op, f"opcode 0x{op:02X}")
-                reason = f"file ends inside a {name} record of {length} bytes"
+                bad = f"file ends inside a {name} record of {length} bytes at byte {pos}"
                 cut_op = op
-                break
-            if op == 0 or OP_DATA_END < op < 0x80:
-                reason = f"unreadable record (opcode 0x{op:02X}) at byte {pos}"
-                break
-            if op != OP_MESSAGE_INDEX and last_chunk is not None:
-                last_chunk.index_complete = True
+            elif op == 0 or OP_DATA_END < op < 0x80:
+                bad = f"unreadable record (opcode 0x{op:02X}) at byte {pos}"
+            if not bad:
+                if op != OP_MESSAGE_INDEX and last_chunk is not None:
+                    last_chunk.index_complete = True
+                    last_chunk = None
+                if op != OP_MESSAGE and loose is not None and op in (OP_CHUNK, OP_DATA_END):
+                    self.chunks.append(self._loose_chunk(*loose))
+                    loose = None
+                try:
+                    last_chunk = self._record(op, pos, end, last_chunk)
+                except (struct.error, UnicodeDecodeError, ValueError) as exc:
+                    bad = f"malformed record (opcode 0x{op:02X}) at byte {pos}: {exc}"
+                else:
+                    if op == OP_MESSAGE:
+                        self.loose_messages += 1
+                        loose = [pos, end] if loose is None else [loose[0], end]
+                    elif op == OP_DATA_END:
+                        self.scan_end = end
+                        return
+            if bad:
+                resume = self._resync(pos, bad, repaired)
+                if resume is None:
+                    reason = bad
+                    break
                 last_chunk = None
-            body = pos + 9
-            try:
-                if op == OP_HEADER:
-                    self.profile, p = read_str(mm, body)
-                    self.library, _ = read_str(mm, p)
-                elif op == OP_SCHEMA:
-                    self._schema(body)
-                elif op == OP_CHANNEL:
-                    self._channel(body)
-                elif op == OP_CHUNK:
-                    last_chunk = self._chunk(pos, body, end)
-                    self.chunks.append(last_chunk)
-                elif op == OP_MESSAGE_INDEX:
-                    if self.chunks:
-                        (cid, rec_len) = struct.unpack_from("<HI", mm, body)
-                        self.chunks[-1].index[cid] = (body + 6, min(rec_len, length - 6))
-                elif op == OP_METADATA:
-                    name, p = read_str(mm, body)
-                    self.metadata.append((name, read_map(mm, p)))
-                elif op == OP_ATTACHMENT:
-                    self.attachments.append(self._attachment(pos, body, end))
-                elif op == OP_MESSAGE:
-                    self.loose_messages += 1
-                elif op == OP_DATA_END:
-                    (self.data_section_crc,) = struct.unpack_from("<I", mm, body)
-                    self.data_end = pos
-                    self.scan_end = end
-                    return
-            except (struct.error, UnicodeDecodeError, ValueError) as exc:
-                reason = f"malformed record (opcode 0x{op:02X}) at byte {pos}: {exc}"
-                break
+                if resume == pos:  # the index knows this chunk's extent: read it with that
+                    repaired.add(pos)
+                    info = self._chunk(pos, pos + 9, pos + self._index_len[pos])
+                    self.chunks.append(info)
+                    last_chunk = info
+                    end = info.end
+                else:
+                    end = resume
             pos = end
             self.scan_end = pos
+        if loose is not None:
+            self.chunks.append(self._loose_chunk(*loose))
         # not finished: everything from pos on is lost
         self.lost_bytes = size - self.scan_end
         if cut_op == OP_MESSAGE_INDEX:  # the last chunk is whole: only its index is cut
@@ -259,18 +283,134 @@ class McapLog:
         secs = f", ~{lost * span_s / comp:.1f} s" if span_s > 0 and comp else ""
         return f" (~{int(lost * frames / max(1, comp))} frames{secs})"
 
-    def _schema(self, p: int) -> None:
-        (sid,) = struct.unpack_from("<H", self._mm, p)
-        name, p = read_str(self._mm, p + 2)
-        enc, p = read_str(self._mm, p)
-        (n,) = struct.unpack_from("<I", self._mm, p)
-        self.schemas[sid] = SchemaInfo(sid, name, enc, bytes(self._mm[p + 4 : p + 4 + n]))
+    def _record(
+        self, op: int, pos: int, end: int, last_chunk: ChunkInfo | None
+    ) -> ChunkInfo | None:
+        """Take in one data-section record; returns the chunk whose MessageIndex records
+        may follow (the new one after a Chunk, else ``last_chunk``)."""
+        mm, body = self._mm, pos + 9
+        if op == OP_HEADER:
+            self.profile, p = read_str(mm, body)
+            self.library, _ = read_str(mm, p)
+        elif op == OP_SCHEMA:
+            schema = self._schema(mm, body)
+            self.schemas[schema.id] = schema
+        elif op == OP_CHANNEL:
+            channel = self._channel(mm, body)
+            self.channels[channel.id] = channel
+        elif op == OP_CHUNK:
+            info = self._chunk(pos, body, end)
+            self.chunks.append(info)
+            return info
+        elif op == OP_MESSAGE_INDEX:
+            if self.chunks and not self.chunks[-1].loose:
+                (cid, rec_len) = struct.unpack_from("<HI", mm, body)
+                self.chunks[-1].index[cid] = (body + 6, min(rec_len, end - body - 6))
+        elif op == OP_METADATA:
+            name, p = read_str(mm, body)
+            self.metadata.append((name, read_map(mm, p)))
+        elif op == OP_ATTACHMENT:
+            self.attachments.append(self._attachment(pos, body, end))
+        elif op == OP_DATA_END:
+            (self.data_section_crc,) = struct.unpack_from("<I", mm, body)
+            self.data_end = pos
+        return last_chunk
 
-    def _channel(self, p: int) -> None:
-        cid, sid = struct.unpack_from("<HH", self._mm, p)
-        topic, p = read_str(self._mm, p + 4)
-        enc, p = read_str(self._mm, p)
-        self.channels[cid] = ChannelInfo(cid, sid, topic, enc, read_map(self._mm, p))
+    def _loose_chunk(self, start: int, end: int) -> ChunkInfo:
+        """Unchunked messages (and any definitions between them) read as one uncompressed
+        chunk: the chunk readers walk it like a chunk without a MessageIndex."""
+        n = end - start
+        return ChunkInfo(start, n, 0, 0, n, 0, "", start, n, loose=True)
+
+    def _resync(self, pos: int, why: str, repaired: set[int]) -> int | None:
+        """Where the walk goes on after an unreadable record at ``pos``: ``pos`` itself when
+        the summary's chunk index has a chunk there (its header is damaged, not its
+        content), else the next indexed chunk; None without a usable chunk index."""
+        if not self._index_len:
+            return None
+        if pos in self._index_len and pos not in repaired:
+            try:
+                self._chunk(pos, pos + 9, pos + self._index_len[pos])
+            except (struct.error, UnicodeDecodeError, ValueError):
+                pass
+            else:
+                self.damage.append(
+                    f"damaged record header at byte {pos} ({why}); "
+                    "the chunk was read with the length in the chunk index"
+                )
+                return pos
+        later = [s for s in self._index_len if s > pos]
+        if not later:
+            return None
+        nxt = min(later)
+        self.damage.append(f"unreadable bytes {pos}..{nxt} skipped ({why})")
+        return nxt
+
+    def _peek_summary(self) -> None:
+        """Read the summary section before the data section: its chunk index lets the scan
+        step over a damaged record, and other writers keep definitions there (or only
+        inside chunks). Anything malformed here is a warning, never an exception."""
+        mm, size = self._mm, self.size
+        foot = size - 8 - FOOTER_LEN
+        if foot < len(MAGIC) or bytes(mm[size - 8 :]) != MAGIC:
+            return
+        op, length, sstart, soff, crc = struct.unpack_from("<BQQQI", mm, foot)
+        if op != OP_FOOTER or length != 20 or not sstart:
+            return
+        if not len(MAGIC) <= sstart <= foot:
+            self._summary_problem = "footer points outside the file (summary lost)"
+            return
+        if crc and zlib.crc32(mm[sstart : foot + 1 + 8 + 16]) != crc:
+            self._summary_problem = "summary CRC mismatch (summary ignored)"
+            return
+        end = soff if sstart <= soff <= foot else foot
+        pos = sstart
+        schemas: dict[int, SchemaInfo] = {}
+        channels: dict[int, ChannelInfo] = {}
+        index: dict[int, int] = {}
+        try:
+            while pos + 9 <= end:
+                rop, rlen = struct.unpack_from("<BQ", mm, pos)
+                rend = pos + 9 + rlen
+                if rend > end:
+                    raise ValueError(f"record at byte {pos} overruns the summary")
+                if rop == OP_STATISTICS:
+                    try:
+                        self.statistics = read_statistics(mm, pos + 9, rend)
+                    except (struct.error, ValueError) as exc:
+                        self.warnings.append(
+                            f"{self.path}: malformed Statistics record in the summary "
+                            f"({exc}): statistics ignored"
+                        )
+                elif rop == OP_SCHEMA:
+                    schema = self._schema(mm, pos + 9)
+                    schemas[schema.id] = schema
+                elif rop == OP_CHANNEL:
+                    channel = self._channel(mm, pos + 9)
+                    channels[channel.id] = channel
+                elif rop == OP_CHUNK_INDEX:
+                    start, clen = struct.unpack_from("<QQ", mm, pos + 9 + 16)
+                    if len(MAGIC) <= start and start + clen <= sstart and clen > 9:
+                        index[start] = clen
+                pos = rend
+        except (struct.error, UnicodeDecodeError, ValueError) as exc:
+            self.warnings.append(f"{self.path}: malformed summary section ({exc})")
+        self._sum_schemas, self._sum_channels, self._index_len = schemas, channels, index
+
+    @staticmethod
+    def _schema(buf: Any, p: int) -> SchemaInfo:
+        (sid,) = struct.unpack_from("<H", buf, p)
+        name, p = read_str(buf, p + 2)
+        enc, p = read_str(buf, p)
+        (n,) = struct.unpack_from("<I", buf, p)
+        return SchemaInfo(sid, name, enc, bytes(buf[p + 4 : p + 4 + n]))
+
+    @staticmethod
+    def _channel(buf: Any, p: int) -> ChannelInfo:
+        cid, sid = struct.unpack_from("<HH", buf, p)
+        topic, p = read_str(buf, p + 4)
+        enc, p = read_str(buf, p)
+        return ChannelInfo(cid, sid, topic, enc, read_map(buf, p))
 
     def _chunk(self, pos: int, p: int, end: int) -> ChunkInfo:
         start, stop, usize, crc = struct.unpack_from("<QQQI", self._mm, p)
@@ -290,29 +430,72 @@ class McapLog:
         return AttachmentInfo(name, media, log_time, create_time, p + 8, n, pos, end - pos)
 
     def _read_footer(self) -> None:
-        mm, size = self._mm, self.size
-        foot = size - 8 - FOOTER_LEN
-        if foot < self.scan_end or bytes(mm[size - 8 :]) != MAGIC:
+        """After the data section: is the summary there and sound? Definitions only the
+        summary or the chunks hold are taken in; damage found on the way is reported."""
+        for sid, schema in self._sum_schemas.items():
+            self.schemas.setdefault(sid, schema)
+        for cid, channel in self._sum_channels.items():
+            self.channels.setdefault(cid, channel)
+        self._definitions_from_chunks()
+        self._report_damage()
+        foot = self.size - 8 - FOOTER_LEN
+        if self._summary_problem:
+            self.warnings.append(f"{self.path}: {self._summary_problem}")
+            return
+        if foot < self.scan_end or bytes(self._mm[self.size - 8 :]) != MAGIC:
             self.warnings.append(f"{self.path}: no footer after the data section (summary lost)")
             return
-        op, length, sstart, soff, crc = struct.unpack_from("<BQQQI", mm, foot)
+        op, length = struct.unpack_from("<BQ", self._mm, foot)
         if op != OP_FOOTER or length != 20:
             self.warnings.append(f"{self.path}: bad footer record (summary lost)")
             return
-        if sstart:
-            if crc:
-                calc = zlib.crc32(mm[sstart : foot + 1 + 8 + 16])
-                if calc != crc:
-                    self.warnings.append(f"{self.path}: summary CRC mismatch (summary ignored)")
-                    return
-            pos = sstart
-            end = soff or foot
-            while pos + 9 <= end:
-                rop, rlen = struct.unpack_from("<BQ", mm, pos)
-                if rop == OP_STATISTICS:
-                    self.statistics = read_statistics(mm, pos + 9)
-                pos += 9 + rlen
         self.summary_ok = True
+
+    def _definitions_from_chunks(self) -> None:
+        """Schema and Channel records that live only inside chunks (the spec allows it; the
+        mcap package's writer puts them there): looked for only when a chunk's index names
+        a channel no top-level record defined, or an unindexed chunk is all there is."""
+        known = set(self.channels)
+        wanted = [
+            c for c in self.chunks
+            if (c.indexed and not known.issuperset(c.index)) or (not c.indexed and not known)
+        ]  # fmt: skip
+        for info in wanted:
+            buf = self.decompress(info)
+            if buf is None:
+                continue
+            for op, body, _ in walk_records(buf, {OP_SCHEMA, OP_CHANNEL}):
+                try:
+                    if op == OP_SCHEMA:
+                        schema = self._schema(buf, body)
+                        self.schemas.setdefault(schema.id, schema)
+                    else:
+                        channel = self._channel(buf, body)
+                        self.channels.setdefault(channel.id, channel)
+                except (struct.error, UnicodeDecodeError, ValueError):
+                    continue
+
+    def _report_damage(self) -> None:
+        """Damage the scan stepped over, with the frames it cost, counted from the
+        summary's statistics against what the chunk indexes of the readable chunks hold."""
+        if not self.damage:
+            return
+        fid = self.channel_id(S.FRAME_TOPIC)
+        lost = ""
+        stats = self.statistics
+        if fid is not None and stats is not None and fid in stats["channel_message_counts"]:
+            have = 0
+            for c in self.chunks:
+                if c.indexed and fid in c.index:
+                    have += c.index[fid][1] // 16
+                elif not c.indexed:
+                    buf = self.decompress(c)
+                    have += len(walk_chunk(buf, {fid}).get(fid, ())) if buf is not None else 0
+            n = max(0, stats["channel_message_counts"][fid] - have)
+            self.lost_frames = n
+            lost = f"; {n} frames lost" if n else "; no frames lost"
+        self.damage = [d + lost for d in self.damage]
+        self.warnings += [f"{self.path}: {d}" for d in self.damage]
 
     # -- chunk content ---------------------------------------------------------------------
     def decompress(self, info: ChunkInfo) -> bytes | None:
@@ -551,7 +734,7 @@ class McapLog:
     def verify(self) -> list[str]:
         """Check every CRC in the file (data section, summary, chunks, attachments);
         returns the problems found (empty = all good or not recorded)."""
-        problems = []
+        problems = list(self.damage)
         crc = self.data_section_crc
         if self.data_end is not None and crc:
             calc = 0

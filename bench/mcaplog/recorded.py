@@ -21,10 +21,6 @@ from devices.base import SourceNotice
 from protocol.records import LinkError
 
 
-def open_log(path: str | Path) -> McapLog:
-    return McapLog(path)
-
-
 def _with(source: str | Path | McapLog, fn: Any) -> Any:
     if isinstance(source, McapLog):
         return fn(source)

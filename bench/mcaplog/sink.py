@@ -9,6 +9,7 @@ writes the summary section (statistics, chunk/metadata/attachment indexes) and t
 from __future__ import annotations
 
 import atexit
+import dataclasses
 import json
 import logging
 import math
@@ -26,11 +27,9 @@ from bench.mcaplog import schemas as S
 from bench.mcaplog.encoder import MessageEncoder, config_record, run_record
 from bench.mcaplog.file import DEFAULT_CHUNK_SIZE, McapFile, utc_now
 from bench.pipeline.stats import Stats
-from bench.pipeline.steps import StepOutput
-from bench.records.arrays import concat_records as _concat
+from bench.pipeline.steps import StepOutput, merge_steps
 from bench.records.events import EventKind, make_events
 from bench.sinks.queued import MAX_GROUP, STOP, QueuedSink
-from devices.base import SourceBatch
 from protocol.batch import decode_batch
 from protocol.layout import SPEED_REF_ID, Outcome
 
@@ -48,31 +47,18 @@ def _outcome(step: StepOutput, base_id: int) -> np.ndarray:
     return decode_batch(step.frames, base_id).outcome
 
 
-def merge_steps(
+def merge_group(
     items: list[tuple[StepOutput, int]], base_id: int
 ) -> tuple[StepOutput, int, np.ndarray]:
-    """Consecutive steps as one (arrays concatenated in order), the first step's enqueue
-    time, and the index of each step's first frame (its source batch start)."""
+    """Consecutive queued steps as one (:func:`bench.pipeline.steps.merge_steps`, with each
+    step's frame outcomes), the first step's enqueue time, and the index of each step's
+    first frame (its source batch start)."""
     steps = [s for s, _ in items]
     sizes = np.array([len(s.frames) for s in steps], dtype=np.int64)
     starts = (np.cumsum(sizes) - sizes)[sizes > 0]
     if len(steps) == 1:
         return steps[0], items[0][1], starts
-    link_errors = [e for s in steps if s.batch is not None for e in s.batch.link_errors]
-    notices = [n for s in steps if s.batch is not None for n in s.batch.notices]
-    cat = lambda name: _concat([getattr(s, name) for s in steps])  # noqa: E731
-    frames = cat("frames")
-    merged = StepOutput(
-        frames=frames,
-        outcome=_concat([_outcome(s, base_id) for s in steps]),
-        seq0=steps[0].seq0,
-        samples=cat("samples"),
-        results=cat("results"),
-        events=cat("events"),
-        status=cat("status"),
-        speed=cat("speed"),
-        batch=SourceBatch(frames, link_errors, notices),
-    )
+    merged = merge_steps([dataclasses.replace(s, outcome=_outcome(s, base_id)) for s in steps])
     return merged, items[0][1], starts
 
 
@@ -254,7 +240,7 @@ class McapSink(QueuedSink):
             if due or frames >= self._group_frames or i == len(run) - 1:
                 group = run[start : i + 1]
                 try:
-                    self._handle(*merge_steps(group, self.config.base_id), since)
+                    self._handle(*merge_group(group, self.config.base_id), since)
                 except Exception as exc:  # the file failed; the rest is counted as lost
                     self.fail(exc)
                 start = i + 1

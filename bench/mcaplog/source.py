@@ -12,6 +12,8 @@ import math
 from collections.abc import Iterator
 from pathlib import Path
 
+from bench.errors import BenchError
+from bench.mcaplog import schemas as S
 from bench.mcaplog.reader import McapLog
 from devices.base import FileSource, SourceBatch, SourceNotice
 
@@ -29,6 +31,12 @@ class McapFrameSource(FileSource):
         self.batching = batching
         self.path = Path(path)
         self.log = McapLog(self.path)
+        if foreign := self.log.foreign_topics():
+            self.log.close()
+            raise BenchError(
+                f"{self.path}: no bench topics in this MCAP file (a replay reads "
+                f"{S.FRAME_TOPIC}; it holds {', '.join(foreign[:6])})"
+            )
         run = self.log.metadata_dict().get("run", {})
         recorded = run.get("source", "")
         self.description = f"MCAP log {self.path.name}" + (
@@ -62,6 +70,7 @@ class McapFrameSource(FileSource):
             )
             for info, why in self.log.bad_chunks[bad_seen:]
         ]
+        notices += [SourceNotice(last_t, "parse_error", d) for d in self.log.damage]
         if self.log.truncated:
             notices.append(SourceNotice(last_t, "truncated", self.log.truncation))
         self._position = self.log.size

@@ -4,6 +4,7 @@ channels, attachments, chunks) and the little-endian field readers of the MCAP s
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -86,6 +87,7 @@ class ChunkInfo:
         default_factory=dict
     )  # channel -> (entries offset, bytes)
     index_complete: bool = False  # a record after the MessageIndex run was seen
+    loose: bool = False  # not a Chunk record: a run of unchunked Message records (spec 3.1)
 
     @property
     def indexed(self) -> bool:
@@ -157,11 +159,15 @@ def read_map(buf: Any, p: int) -> dict[str, str]:
     return out
 
 
-def read_statistics(buf: Any, p: int) -> dict[str, Any]:
+def read_statistics(buf: Any, p: int, end: int) -> dict[str, Any]:
+    """The Statistics record whose body starts at ``p`` and whose record ends at ``end``;
+    ValueError when its counts map claims more bytes than the record holds."""
     msg, schemas, channels, atts, metas, chunks, t0, t1, n = struct.unpack_from(
         "<QHIIIIQQI", buf, p
     )
     p += 8 + 2 + 4 * 4 + 16 + 4
+    if p + n > end:
+        raise ValueError(f"channel counts of {n} bytes overrun the record")
     counts = {}
     for k in range(n // 10):
         cid, count = struct.unpack_from("<HQ", buf, p + 10 * k)
@@ -177,6 +183,21 @@ def read_statistics(buf: Any, p: int) -> dict[str, Any]:
         "message_end_time": t1,
         "channel_message_counts": counts,
     }
+
+
+def walk_records(buf: Any, ops: set[int]) -> Iterator[tuple[int, int, int]]:
+    """(opcode, body offset, record end) of every complete record in ``buf`` whose opcode is
+    in ``ops``: the records a chunk holds besides its messages (Schema, Channel)."""
+    pos, size = 0, len(buf)
+    head = struct.Struct("<BQ").unpack_from
+    while pos + 9 <= size:
+        op, length = head(buf, pos)
+        end = pos + 9 + length
+        if end > size:
+            return
+        if op in ops:
+            yield op, pos + 9, end
+        pos = end
 
 
 def walk_chunk(buf: bytes, channels: set[int] | None) -> dict[int, np.ndarray]:

@@ -2,12 +2,13 @@
 
 Why: encoding a live run (a JSON object per result, chunk building) is pure Python. In the
 bench process it runs in bursts of a few milliseconds, and while it holds the GIL the
-acquisition and processing threads wait. Here the bench process only queues each step (as
-before) and a sender thread ships each group of queued steps, merged into one set of arrays
+acquisition and processing threads wait. Here the bench process only queues each step
+and a sender thread ships each group of queued steps, merged into one set of arrays
 (~0.5 ms per 50 ms group), to a writer process at idle CPU priority that runs the very same
 :class:`~bench.mcaplog.sink.McapSink` code without its thread. (Measured on 2 cores: the
 encoder's CPU still shows in the live latency p99 wherever it runs -- see
-docs/BENCHMARKS.md -- but no longer as GIL stalls of the bench process.)
+docs/BENCHMARKS.md -- but as competition for a core, not as GIL stalls of the bench
+process.)
 
 The front (:class:`McapProcessSink`) has McapSink's interface and counters; the writer's
 figures (frames logged, bytes, error) come back after every group. Crash safety gets
@@ -22,10 +23,8 @@ import atexit
 import contextlib
 import logging
 import math
-import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -39,10 +38,10 @@ import numpy as np
 
 from bench.config import Config
 from bench.mcaplog.sink import DEFAULT_FLUSH_INTERVAL_S, DEFAULT_GROUP_INTERVAL_S, McapSink
-from bench.pipeline.steps import StepOutput
-from bench.records.arrays import concat_records
+from bench.pipeline.steps import STEP_ARRAYS, StepOutput, merge_steps
 from bench.sinks.queued import MAX_GROUP, STOP, QueuedSink
 from devices.base import SourceBatch
+from devices.child_process import end_child, parent_connection, start_child
 from devices.cpu_placement import other_cpus, pin_thread, yield_cpu
 
 log = logging.getLogger("bench.mcaplog")
@@ -54,7 +53,6 @@ CLOSE_TIMEOUT_S = 120.0
 WRITER_GROUP_S = 0.25
 """The writer process encodes what arrived in groups this far apart: its fixed cost per
 group (a dozen topics, each a few numpy calls) is then paid 4 times a second."""
-_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
 _CHILD_SIGNALS = tuple(
     getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
 )
@@ -67,9 +65,10 @@ def pack_steps(items: Sequence[tuple[StepOutput, int]]) -> dict[str, Any]:
     one by one costs ~50 us each; this ~10 us per step."""
     steps = [s for s, _ in items]
     batches = [s.batch for s in steps]
+    merged = merge_steps(steps)
     return {
-        "arrays": {name: concat_records([getattr(s, name) for s in steps]) for name in _ARRAYS},
-        "sizes": np.array([[len(getattr(s, n)) for n in _ARRAYS] for s in steps], np.int64),
+        "arrays": {name: getattr(merged, name) for name in STEP_ARRAYS},
+        "sizes": np.array([[len(getattr(s, n)) for n in STEP_ARRAYS] for s in steps], np.int64),
         "seq0": [s.seq0 for s in steps],
         "wall": [w for _, w in items],
         "has_batch": [b is not None for b in batches],
@@ -87,7 +86,7 @@ def unpack_steps(packed: dict[str, Any]) -> list[tuple[StepOutput, int]]:
     for i, wall in enumerate(packed["wall"]):
         part = {
             name: arrays[name][int(starts[i, k]) : int(ends[i, k])]
-            for k, name in enumerate(_ARRAYS)
+            for k, name in enumerate(STEP_ARRAYS)
         }
         batch = None
         if packed["has_batch"][i]:
@@ -146,41 +145,6 @@ def _make_sink(
 
         return foxglove_sink_class()(config, metadata, attachments, threaded=False, **options)  # type: ignore[no-any-return]
     return McapSink(path, config, metadata, attachments, threaded=False, **options)
-
-
-def _start_writer() -> tuple[Connection, subprocess.Popen[bytes]]:
-    """Start the writer process: a fresh interpreter (not multiprocessing, whose daemonic
-    engine process may not have children), in a session of its own so a terminal's Ctrl-C
-    or hang-up reaches only the bench process, talking over a socket pair."""
-    ours, theirs = socket.socketpair()
-    root = str(Path(__file__).resolve().parents[2])  # importable also from a source tree
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    try:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "bench.mcaplog.writer_process", str(theirs.fileno())],
-            pass_fds=(theirs.fileno(),),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,  # the bench process reports the writer's errors
-            env=env,
-            start_new_session=True,
-        )
-    finally:
-        theirs.close()
-    return Connection(ours.detach()), proc
-
-
-def _end_writer(proc: subprocess.Popen[bytes], grace_s: float) -> None:
-    """Wait ``grace_s`` for the writer to end by itself, then terminate, then kill it."""
-    for end in (None, proc.terminate, proc.kill):
-        if end is not None:
-            if proc.poll() is not None:
-                return
-            end()
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            proc.wait(grace_s if end is None else 5.0)
-            return
 
 
 def _writer_main(conn: Connection) -> None:
@@ -257,7 +221,10 @@ class McapProcessSink(QueuedSink):
         self.frames_sent = 0  # frames handed to the writer process
         self.port: int | None = None  # a live Foxglove stream's port (from the writer)
         options = dict(options, flush_interval_s=flush_interval_s)
-        self._conn, self._proc = _start_writer()
+        # a session of its own: a terminal's Ctrl-C or hang-up is the bench process's to handle
+        self._conn, self._proc = start_child(
+            "bench.mcaplog.writer_process", own_session=True, quiet=True
+        )
         self._gone = False
         with contextlib.suppress(OSError):
             self._conn.send(
@@ -276,7 +243,7 @@ class McapProcessSink(QueuedSink):
             return
         with contextlib.suppress(OSError):
             self._conn.close()
-        _end_writer(self._proc, 10.0)
+        end_child(self._proc, 10.0)
 
     # -- sender thread ---------------------------------------------------------------------
     def _await_first(self) -> None:
@@ -376,5 +343,5 @@ class McapProcessSink(QueuedSink):
             self.frames_lost += frames
 
 
-if __name__ == "__main__":  # the writer process (see _start_writer)
-    _writer_main(Connection(int(sys.argv[1])))
+if __name__ == "__main__":  # the writer process (devices.child_process.start_child)
+    _writer_main(parent_connection(sys.argv))

@@ -3,20 +3,23 @@
 One algorithm serves live runs (batches of a few frames) and replay (batches of a
 million): it carries its state across batches, and the outcome does not depend on how the
 stream is cut into batches (tests prove it). It has two twins: a vectorised path for
-batches longer than SCALAR_MAX frames and a plain-Python one for the few frames of a live
-step, where numpy's fixed cost per call would be most of the work. The state between
-batches is small Python values (at most WINDOW open samples), so either path picks it up.
+batches longer than ASSEMBLY_FRAMES frames (bench.records.twins) and a plain-Python one for
+the few frames of a live step, where numpy's fixed cost per call would be most of the work.
+The state between batches is small Python values (at most WINDOW open samples), so either
+path picks it up.
 
 The rules, all driven by frame contents and order (never by wall-clock time), so a live
 run and the replay of its log decide alike:
 
 * Unwrapping. Each valid ADC frame gets an unwrapped sample index ``n`` relative to the
-  previous valid ADC frame from the board-timestamp step (its 6.5536 s wraps resolved by
-  the receive-time step). Once a BOARD_STATUS frame has given the sample rate, board time
-  alone places the frame and a counter that disagrees is reported (COUNTER_JUMP, per
-  frame and channel), so one channel's bad counter cannot pull the others apart. Before
-  that, the counter (mod 256) corrects the predicted step. Counter wrap 255 -> 0 never
-  splits a sample and long gaps do not alias.
+  previous placed ADC frame from the board-timestamp step (``bench.pipeline.timeline``: receive
+  time only bridges 6.5536 s wraps, and only when its gap is whole wraps; a lone frame
+  with a wild receive or board time is an outlier, a clock step a notice). Once a
+  BOARD_STATUS frame has given the sample rate, board time places the frame and a
+  counter that disagrees is reported (COUNTER_JUMP, per frame and channel), so one
+  channel's bad counter cannot pull the others apart. Before that, the counter (mod 256)
+  corrects the predicted step. Counter wrap 255 -> 0 never splits a sample and long gaps
+  do not alias.
 * Membership. A frame joins sample ``n`` unless it is *late* (some earlier frame already
   reached ``n + WINDOW``: the sample was closed) or a *duplicate* (its channel already
   joined ``n``). Late and duplicate frames are counted and ignored.
@@ -27,23 +30,23 @@ run and the replay of its log decide alike:
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from bench.pipeline.timeline import (
+    HALF_CW,
+    HALF_TS,
+    RX_TOL_TICKS,
+    WINDOW,
+    Note,
+    Timeline,
+    board_step,
+    vector_steps,
+)
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
-from bench.records.samples import MAX_BRIDGE_TICKS, NO_SAMPLES, SAMPLE_DTYPE
+from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE
+from bench.records.twins import ASSEMBLY_FRAMES, GAP_EVENT_SAMPLES
 from protocol.batch import DecodedBatch
 from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
-
-WINDOW = 2
-"""Samples a sample may wait for its missing channels ("about two sample periods")."""
-
-SCALAR_MAX = 64
-"""Batches up to this many frames take the scalar path (about where the two cost the same:
-a live step, or the burst after a stall); longer ones the vectorised path."""
-_FEW_ROWS = 16
-"""Emitted samples up to this many get their gap events in plain Python."""
 
 _NONE = np.iinfo(np.int64).min // 4
 _ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
@@ -52,9 +55,7 @@ _ERRORS = (
     (int(Outcome.WRONG_DLC), EventKind.WRONG_DLC, "dlc"),
     (int(Outcome.UNKNOWN_ID), EventKind.UNKNOWN_ID, "can_id"),
 )
-
-_HALF_CW = COUNTER_WRAP // 2
-_HALF_TS = TS_WRAP // 2
+_HALF_CW = HALF_CW
 _COUNTER_JUMP, _LATE, _DUPLICATE = (
     int(EventKind.COUNTER_JUMP),
     int(EventKind.LATE),
@@ -90,6 +91,11 @@ def _array_to_rows(samples: np.ndarray) -> list[Row]:
             strict=True,
         )
     ]
+
+
+def _notes_array(notes: list[Note]) -> np.ndarray:
+    """The timeline's events (already in EVENT_DTYPE field order)."""
+    return np.array(notes, dtype=EVENT_DTYPE) if notes else NO_EVENTS
 
 
 def _event_array(kind: int, rows: list[tuple]) -> np.ndarray:
@@ -128,33 +134,13 @@ def _shifted(a: np.ndarray, first: object) -> np.ndarray:
     return out
 
 
-def _place(
-    chain: tuple[float, int, int, int, int], t: float, ts: int, c: int, period: float, known: bool
-) -> tuple[int, int]:
-    """Sample index and unwrapped board time (ticks) of an ADC frame, from the chain
-    (t, ts, T, c, n) of the ADC frame before it: the scalar twin of Assembler._unwrap."""
-    t0, ts0, big_t0, c0, n0 = chain
-    d = (ts - ts0 + _HALF_TS) % TS_WRAP - _HALF_TS
-    dt_ticks = (t - t0) / TICK_S
-    if math.isfinite(dt_ticks) and abs(dt_ticks) <= MAX_BRIDGE_TICKS:
-        wraps = round((dt_ticks - d) / TS_WRAP)  # round half even, like np.rint
-        if wraps > 0:
-            d += TS_WRAP * wraps
-    est = round(d / period)
-    if known:
-        return n0 + est, big_t0 + d
-    return n0 + est + (c - c0 - est + _HALF_CW) % COUNTER_WRAP - _HALF_CW, big_t0 + d
-
-
 class Assembler:
     """Stateful sample assembly (see module docstring for the rules)."""
 
     def __init__(self, sample_rate_hz: float) -> None:
         self.period_ticks = 1.0 / (sample_rate_hz * TICK_S)
         self.rate_known = False  # set once a BOARD_STATUS frame has told us the rate
-        self._chain: tuple[float, int, int, int, int] | None = (
-            None  # t, ts, T, c, n of last ADC frame
-        )
+        self.timeline = Timeline()  # where frames go: chain of the last placed ADC frame
         self.max_n = _NONE
         self.last_emitted: int | None = None
         self._last_row_n: int | None = None
@@ -168,7 +154,7 @@ class Assembler:
         """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
 
         Returns (emitted samples, events)."""
-        if len(dec) <= SCALAR_MAX:
+        if len(dec) <= ASSEMBLY_FRAMES:
             return self._push_scalar(t, dec, seq0)
         return self._push_vector(t, dec, seq0)
 
@@ -177,7 +163,8 @@ class Assembler:
         rows, self._open = self._open, []
         if rows:
             self.last_emitted = rows[-1][0]
-        return _rows_to_array(rows), self._gap_events_rows(rows)
+        notes = _notes_array(self.timeline.finish())
+        return _rows_to_array(rows), concat_events([notes, self._gap_events_rows(rows)])
 
     # -- shared --------------------------------------------------------------------------
     def _accepted_keys(self) -> list[int]:
@@ -248,7 +235,8 @@ class Assembler:
         tt, counter, stamp = t.tolist(), dec.counter.tolist(), dec.timestamp.tolist()
         channel, code, status = dec.channel.tolist(), dec.code.tolist(), dec.status.tolist()
         period, known = self.period_ticks, self.rate_known
-        chain, mx = self._chain, self.max_n
+        timeline = self.timeline
+        chain, mx = timeline.chain, self.max_n
         taken: set[int] | None = None
         rows = {r[0]: r for r in self._open}
         jumps: list[tuple] = []
@@ -270,8 +258,22 @@ class Assembler:
             ti, ts, c, ch = tt[i], stamp[i], counter[i], channel[i]
             if chain is None:
                 chain = (ti, ts, ts, c, c)
-            n, big_t = _place(chain, ti, ts, c, period, known)
-            chain = (ti, ts, big_t, c, n)
+            placed = None
+            if timeline.pending is None:  # the fast check (the vector path's, per frame)
+                d = (ts - chain[1] + HALF_TS) % TS_WRAP - HALF_TS
+                if abs((ti - chain[0]) / TICK_S - d) <= RX_TOL_TICKS:
+                    step = board_step(d, c, chain[3], period, known)
+                    if -WINDOW <= step <= WINDOW or (c - chain[3] - step) % COUNTER_WRAP == 0:
+                        n, big_t = chain[4] + step, chain[2] + d
+                        chain = (ti, ts, big_t, c, n)
+                        placed = True
+            if placed is None:
+                timeline.chain = chain
+                where = timeline.slow(ti, ts, c, ch, period, known, mx)
+                chain = timeline.chain
+                if where is None:
+                    continue
+                n, big_t, ti = where
             mismatch = (c - n + _HALF_CW) % COUNTER_WRAP - _HALF_CW
             if mismatch and known:
                 jumps.append((ti, ch, n, mismatch))
@@ -296,17 +298,18 @@ class Assembler:
             row[4][ch - 1], row[5][ch - 1], row[6][ch - 1] = code[i], st, True
         if not any_adc:
             return NO_SAMPLES, errors
-        self._chain, self.max_n = chain, mx
+        timeline.chain, self.max_n = chain, mx
+        notes = timeline.take_notes() if timeline.notes else None
         out = self._emit_rows(sorted(rows.values()) if len(rows) > 1 else list(rows.values()))
         gaps = self._gap_events_rows(out)
-        if not (jumps or late or dups or flagged) and not len(gaps):
+        if not (jumps or late or dups or flagged or notes) and not len(gaps):
             return _rows_to_array(out), errors
         parts = [
             _event_array(kind, rows)
             for kind, rows in ((_COUNTER_JUMP, jumps), (_LATE, late), (_DUPLICATE, dups))
         ]
         parts.append(_event_array(_STATUS_FLAG, flagged))
-        return _rows_to_array(out), concat_events([errors, *parts, gaps])
+        return _rows_to_array(out), concat_events([errors, _notes_array(notes or []), *parts, gaps])
 
     # -- vectorised path (replay, bursts) --------------------------------------------------
     def _periods(
@@ -345,13 +348,14 @@ class Assembler:
         ts = dec.timestamp[adc]
         tt = np.asarray(t[adc], dtype=np.float64)
         ch = dec.channel[adc].astype(np.int64)
-        if self._chain is None:
-            self._chain = (float(tt[0]), int(ts[0]), int(ts[0]), int(c[0]), int(c[0]))
-        t0, ts0, big_t0, c0, n0 = self._chain
-        steps, d = self._unwrap(tt, ts, c, t0, ts0, c0, period, known)
-        n = np.cumsum(steps) + n0
-        big_t = np.cumsum(d) + big_t0
-        self._chain = (float(tt[-1]), int(ts[-1]), int(big_t[-1]), int(c[-1]), int(n[-1]))
+        n, big_t, keep, tt = self._place_vector(tt, ts, c, ch, period, known)
+        if keep is not None:  # outliers leave the stream here (their events are raised)
+            sel = np.flatnonzero(keep)
+            c, tt, ch, adc, n, big_t = (a[sel] for a in (c, tt, ch, adc, n, big_t))
+            if not isinstance(known, bool):
+                known = known[sel]
+        if self.timeline.notes:
+            events.append(_notes_array(self.timeline.take_notes()))
 
         # counter vs. the placed index, mod 256 (int8 wrap = centred remainder)
         mismatch = (c - n.astype(np.uint8)).view(np.int8)
@@ -361,6 +365,8 @@ class Assembler:
                 make_events(EventKind.COUNTER_JUMP, tt[jump], ch[jump], n[jump], mismatch[jump])
             )
 
+        if len(n) == 0:
+            return NO_SAMPLES, concat_events(events)
         acc, late = self._membership(n, ch)
         dup = ~late & ~acc
         any_late, any_dup = bool(late.any()), bool(dup.any())
@@ -384,38 +390,72 @@ class Assembler:
         events.append(self._gap_events(out))
         return out, concat_events(events)
 
-    @staticmethod
-    def _unwrap(
+    def _place_vector(
+        self,
         tt: np.ndarray,
         ts: np.ndarray,
         c: np.ndarray,
-        t0: float,
-        ts0: int,
-        c0: int,
+        ch: np.ndarray,
         period: float | np.ndarray,
         known: bool | np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Sample-index steps and board-time steps (ticks) from each ADC frame's predecessor."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
+        """(n, T, kept or None for all, receive times for the samples) of each ADC frame.
+
+        The fast check of the scalar path, on every frame against its predecessor at
+        once; the few frames it does not pass (and the frame after a suspect one) go
+        through Timeline.slow one by one, the runs between them by cumulative sums."""
+        timeline = self.timeline
+        if timeline.chain is None:
+            timeline.start(float(tt[0]), int(ts[0]), int(c[0]))
+        t0, ts0, big_t0, c0, n0 = timeline.chain  # type: ignore[misc]
         d = (ts - _shifted(ts, ts0)).view(np.int16).astype(np.int64)  # centred, mod 2**16
+        c_prev = _shifted(c, c0)
+        step = vector_steps(d, c, c_prev, period, known)
         with np.errstate(invalid="ignore", over="ignore"):
-            dt_ticks = (tt - _shifted(tt, t0)) / TICK_S
-            # receive time bridges timestamp wraps only over plausible gaps: a corrupt or
-            # missing receive time (0, 1e15, NaN) must not throw the sample index away.
-            # Only steps more than half a wrap off board time can round to a wrap.
-            far = np.flatnonzero(np.abs(dt_ticks - d) > _HALF_TS)
-        if len(far):
-            dtf, df = dt_ticks[far], d[far]
-            plausible = np.abs(dtf) <= MAX_BRIDGE_TICKS
-            wraps = np.where(plausible, np.rint((np.where(plausible, dtf, 0.0) - df) / TS_WRAP), 0)
-            d[far] += TS_WRAP * np.maximum(wraps, 0.0).astype(np.int64)
-        est = np.rint(d / period).astype(np.int64)
-        if known is True:
-            step = est
-        else:
-            # before the rate is known the counter corrects the predicted step (mod 256)
-            dc = (c - _shifted(c, c0) - est.astype(np.uint8)).view(np.int8)
-            step = est + dc if known is False else np.where(known, est, est + dc)
-        return step, d
+            fast = np.abs((tt - _shifted(tt, t0)) / TICK_S - d) <= RX_TOL_TICKS
+        counter_ok = (c - c_prev - step.astype(np.uint8)) == 0
+        fast &= (np.abs(step) <= WINDOW) | counter_ok
+        if timeline.pending is not None:
+            fast[0] = False
+        if bool(fast.all()):
+            n = np.cumsum(step) + n0
+            big_t = np.cumsum(d) + big_t0
+            timeline.chain = (float(tt[-1]), int(ts[-1]), int(big_t[-1]), int(c[-1]), int(n[-1]))
+            return n, big_t, None, tt
+        n = np.empty(len(tt), dtype=np.int64)
+        big_t = np.empty(len(tt), dtype=np.int64)
+        keep = np.ones(len(tt), dtype=bool)
+        tt = tt.copy()
+        slow = np.flatnonzero(~fast).tolist()
+        mx, pos, k = self.max_n, 0, 0
+        while True:
+            if timeline.pending is not None:
+                i = pos
+            else:
+                while k < len(slow) and slow[k] < pos:
+                    k += 1
+                i = slow[k] if k < len(slow) else len(tt)
+            if i > pos:  # a run of fast frames after the chain
+                chain = timeline.chain
+                assert chain is not None
+                n[pos:i] = np.cumsum(step[pos:i]) + chain[4]
+                big_t[pos:i] = np.cumsum(d[pos:i]) + chain[2]
+                mx = max(mx, int(n[pos:i].max()))
+                j = i - 1
+                timeline.chain = (float(tt[j]), int(ts[j]), int(big_t[j]), int(c[j]), int(n[j]))
+            if i >= len(tt):
+                break
+            per = period if isinstance(period, float) else float(period[i])
+            kn = known if isinstance(known, bool) else bool(known[i])
+            where = timeline.slow(float(tt[i]), int(ts[i]), int(c[i]), int(ch[i]), per, kn, mx)
+            if where is None:
+                keep[i] = False
+                n[i] = big_t[i] = 0
+            else:
+                n[i], big_t[i], tt[i] = where
+                mx = max(mx, where[0])
+            pos = i + 1
+        return n, big_t, (None if bool(keep.all()) else keep), tt
 
     def _membership(self, n: np.ndarray, ch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(accepted, late) per ADC frame; updates max_n."""
@@ -513,7 +553,7 @@ class Assembler:
         return table[: i + len(done)]
 
     def _gap_events(self, out: np.ndarray) -> np.ndarray:
-        if len(out) <= _FEW_ROWS:
+        if len(out) <= GAP_EVENT_SAMPLES:
             return self._gap_events_rows(_array_to_rows(out))
         parts = []
         present = out["present"]

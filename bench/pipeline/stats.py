@@ -8,10 +8,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.records.events import EventKind
-from protocol.batch import SCALAR_MAX, DecodedBatch
+from bench.records.twins import STATS_ROWS
+from protocol.batch import DecodedBatch
 
-_FEW = SCALAR_MAX
-"""Up to this many rows are counted in plain Python (a live step), more with numpy."""
 _PER_CHANNEL = {
     EventKind.CRC_ERROR: "crc_errors",
     EventKind.GAP: "gaps",
@@ -26,6 +25,9 @@ _TOTALS = {
     EventKind.UNKNOWN_ID: "unknown_id",
     EventKind.LINK_ERROR: "link_errors",
     EventKind.PARSE_ERROR: "parse_errors",
+    EventKind.OUTLIER: "outliers",
+    EventKind.TIME_OUTLIER: "outliers",
+    EventKind.CLOCK_STEP: "clock_steps",
 }
 
 
@@ -57,6 +59,8 @@ class Stats:
     unknown_id: int = 0
     link_errors: int = 0
     parse_errors: int = 0
+    outliers: int = 0  # lone frames off the stream's time axis (bench.pipeline.timeline)
+    clock_steps: int = 0  # receive (or board) clock steps survived
     samples: int = 0
     valid: int = 0
     degraded: int = 0
@@ -83,7 +87,7 @@ class Stats:
 
     def count_frames(self, ids: np.ndarray) -> None:
         self.frames += len(ids)
-        if len(ids) <= 16:  # a live batch: cheaper without numpy's fixed costs
+        if len(ids) <= STATS_ROWS:  # a live batch: cheaper without numpy's fixed costs
             self.frames_by_id.update(ids.tolist())
         else:
             u, c = np.unique(ids, return_counts=True)
@@ -93,7 +97,7 @@ class Stats:
         if len(events) == 0:
             return
         kinds = events["kind"]
-        if len(events) <= _FEW:
+        if len(events) <= STATS_ROWS:
             self._count_events_scalar(kinds.tolist(), events["channel"].tolist(), events)
             return
         per_kind = np.bincount(kinds).tolist()
@@ -137,7 +141,7 @@ class Stats:
         if n == 0:
             return
         self.samples += n
-        if n <= _FEW:
+        if n <= STATS_ROWS:
             self.valid += sum(results["valid"].tolist())
             self.degraded += sum(results["degraded"].tolist())
             for votes in results["votes"].tolist():
@@ -152,7 +156,7 @@ class Stats:
 
     def count_channel_frames(self, t: np.ndarray, dec: DecodedBatch) -> None:
         """Valid frames per ADC channel, and the receive times of the first and last."""
-        if len(dec) <= _FEW:
+        if len(dec) <= STATS_ROWS:
             channels, outcomes = dec.channel.tolist(), dec.outcome.tolist()
             good = [(ch, i) for i, ch in enumerate(channels) if ch and not outcomes[i]]
             if not good:
@@ -186,6 +190,8 @@ class Stats:
             "unknown_id": self.unknown_id,
             "link_errors": self.link_errors,
             "parse_errors": self.parse_errors,
+            "outliers": self.outliers,
+            "clock_steps": self.clock_steps,
             "samples": self.samples,
             "valid": self.valid,
             "valid_fraction": self.valid / self.samples if self.samples else 0.0,

@@ -12,6 +12,7 @@ with acquisition and logging, and its fixed cost per step is the live latency.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,10 +22,12 @@ from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
 from bench.pipeline.assembly import Assembler
 from bench.pipeline.stats import Stats
+from bench.records.arrays import concat_records
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
+from bench.records.twins import FUSION_SAMPLES
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
@@ -40,9 +43,6 @@ _NOTICE_KINDS = {
 _VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
 _NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
 _NO_FRAMES = empty_frames()
-SCALAR_SAMPLES = 16
-"""Steps with up to this many samples are fused by the scalar twin (a live step has one or
-two); more by the vectorised path. Same float64 results either way (tests prove it)."""
 
 
 class _ByteRuns:
@@ -101,6 +101,37 @@ class StepOutput:
     status: np.ndarray = field(default_factory=lambda: np.zeros(0, STATUS_DTYPE))
     speed: np.ndarray = field(default_factory=lambda: np.zeros(0, SPEED_DTYPE))
     batch: SourceBatch | None = None
+
+
+STEP_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
+"""The array fields of a StepOutput, in the order the MCAP writer takes them."""
+
+
+def merge_batches(parts: Sequence[SourceBatch]) -> SourceBatch:
+    """One batch holding the parts' frames, link errors and notices, in arrival order."""
+    if len(parts) == 1:
+        return parts[0]
+    return SourceBatch(
+        concat_records([p.frames for p in parts]),
+        [e for p in parts for e in p.link_errors],
+        [n for p in parts for n in p.notices],
+    )
+
+
+def merge_steps(steps: Sequence[StepOutput]) -> StepOutput:
+    """Consecutive steps as one: every array field concatenated in order (one bytes join
+    each, not np.concatenate), the batches' link errors and notices in order, the first
+    step's ``seq0``. The one routine for every place that ships or writes steps in groups."""
+    if len(steps) == 1:
+        return steps[0]
+    arrays = {name: concat_records([getattr(s, name) for s in steps]) for name in STEP_ARRAYS}
+    batches = [s.batch for s in steps if s.batch is not None]
+    batch = SourceBatch(
+        arrays["frames"],
+        [e for b in batches for e in b.link_errors],
+        [n for b in batches for n in b.notices],
+    )
+    return StepOutput(**arrays, seq0=steps[0].seq0, batch=batch)
 
 
 class Pipeline:
@@ -178,7 +209,7 @@ class Pipeline:
             return _NO_RESULTS, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
-        if len(samples) <= SCALAR_SAMPLES:
+        if len(samples) <= FUSION_SAMPLES:
             return self._compute_scalar(samples, speed)
         res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
         _FROM_SAMPLE.copy(res, samples)

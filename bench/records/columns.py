@@ -97,7 +97,7 @@ first); RESULT_DTYPE fields not listed follow in dtype order, named as the field
 
 EVENT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
     "t": (("receive_time_s",), "s", "receive time at which the event was noticed"),
-    "kind": (("kind",), "", "bench.events.EventKind value"),
+    "kind": (("kind",), "", "bench.records.events.EventKind value"),
     "channel": (("channel",), "", "ADC channel 1..3, 0 when none"),
     "n": (("counter",), "", "sample index, -1 when none"),
     "value": (("value",), "", "kind-specific value (docs/MCAP.md)"),

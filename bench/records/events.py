@@ -10,6 +10,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from bench.records.twins import EVENT_ROWS
+
 
 class EventKind(IntEnum):
     CRC_ERROR = 1  # channel = ADC channel or 0; value = frame id
@@ -31,10 +33,14 @@ class EventKind(IntEnum):
     EXCLUDED = 17  # channel, n: the estimator excluded a channel; value = reason code
     READMITTED = 18  # channel, n: the estimator readmitted it
     BOARD_STATE = 19  # value = new board state
-    LOG_ERROR = 20  # the log sink failed (disk full, unwritable)
+    # 20: unused (kinds are recorded in logs by number: never renumber)
     DROPPED = 21  # value = frames dropped by a full queue
     OUTPUT_ERROR = 22  # a secondary output (CSV) failed; value = errno (28: disk full), or 0
-    SOCKET_OVERFLOW = 23  # value = frames the kernel dropped at a full socket receive buffer
+    OUTLIER = 23  # channel, n: a lone frame whose board time threw it off the stream (dropped);
+    # value = its receive-minus-board time against the stream's, ms
+    TIME_OUTLIER = 24  # channel, n: a lone frame whose receive time was off (frame used); value ms
+    CLOCK_STEP = 25  # receive time minus board time stepped (host or board clock); value = ms
+    SOCKET_OVERFLOW = 26  # value = frames the kernel dropped at a full socket receive buffer
 
 
 EVENT_DTYPE = np.dtype(
@@ -52,6 +58,9 @@ SEVERITY = {
     EventKind.VOTE_FAIL: "warning",
     EventKind.STATUS_FLAG: "warning",
     EventKind.UNKNOWN_ID: "info",
+    EventKind.OUTLIER: "warning",
+    EventKind.TIME_OUTLIER: "warning",
+    EventKind.CLOCK_STEP: "info",
 }
 
 
@@ -96,8 +105,6 @@ def _in_order(t: np.ndarray) -> bool:
     return bool(np.all(t[1:] >= t[:-1]))
 
 
-_FEW = 16
-"""Up to this many events are ordered in plain Python (numpy's fixed costs would dominate)."""
 _WORD = np.uint16 if EVENT_DTYPE.itemsize % 2 == 0 else np.uint8
 
 
@@ -131,7 +138,7 @@ def concat_events(parts: list[np.ndarray]) -> np.ndarray:
         return NO_EVENTS
     if len(parts) == 1:
         return parts[0]
-    if sum(len(p) for p in parts) <= _FEW:  # a live step's few: sort Python tuples
+    if sum(len(p) for p in parts) <= EVENT_ROWS:  # a live step's few: sort Python tuples
         rows = [row for p in parts for row in p.tolist()]
         rows.sort(key=lambda r: (r[0] != r[0], r[0]))  # stable, NaN last, like argsort
         return np.array(rows, dtype=EVENT_DTYPE)
@@ -170,6 +177,8 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
     elif kind is EventKind.SOCKET_OVERFLOW:
         parts.append(f"{value} frames dropped by the kernel (socket receive buffer full)")
+    elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
+        parts.append(f"{value / 1000:+.3f} s")
     elif kind is EventKind.OUTPUT_ERROR:
         import os
 

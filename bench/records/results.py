@@ -31,3 +31,7 @@ RESULT_DTYPE = np.dtype(
         ("excluded", "u1"),  # channel excluded by the estimator (1..3), 0 = none
     ]
 )
+
+VOTE_SLOPES = ((0, 1), (1, 2), (0, 2))
+"""The two ``slopes`` columns each of ``votes`` v1, v2, v3 compares (g12~g23, g23~g13,
+g12~g13): how a screen labels a vote without importing fusion (bench.fusion.reference)."""

@@ -16,6 +16,8 @@ from typing import TypeVar
 T = TypeVar("T")
 
 _END = object()
+JOIN_TIMEOUT_S = 2.0
+"""How long the consumer's exit waits for the reader to notice it should stop."""
 
 
 class _Failed:
@@ -55,7 +57,10 @@ def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:
     reader.start()
     try:
         while True:
-            item = q.get()
+            try:  # in slices: a Ctrl-C delivered to the reader thread must still get through
+                item = q.get(timeout=0.1)
+            except queue.Empty:
+                continue
             if item is _END:
                 return
             if isinstance(item, _Failed):
@@ -63,4 +68,6 @@ def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:
             yield item  # type: ignore[misc]
     finally:
         stop.set()
-        reader.join()
+        # a reader stuck inside one read (a pipe that never writes, a hung network file)
+        # must not hold up Ctrl-C or the end of a replay: it is a daemon thread, left to die
+        reader.join(timeout=JOIN_TIMEOUT_S)

@@ -1,10 +1,13 @@
-"""What consumes pipeline output: the contract every sink (CSV, MCAP, UI snapshot) follows."""
+"""What consumes pipeline output: the contract every sink (CSV, MCAP, UI snapshot) follows,
+and the figures a recording sink reports."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
-from bench.pipeline.steps import StepOutput
+if TYPE_CHECKING:  # a type only: the screen process reads RecordingStatus, not the pipeline
+    from bench.pipeline.steps import StepOutput
 
 
 class Sink(Protocol):
@@ -18,3 +21,19 @@ class Sink(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+@dataclass(frozen=True, slots=True)
+class RecordingStatus:
+    """A recording's figures for a status line or the TUI. ``None``: not known for this
+    sink (a figure it does not keep is left out of the display, not shown as 0)."""
+
+    path: str
+    frames: int | None = None  # frames in flushed chunks
+    bytes: int | None = None  # bytes written so far
+    dropped: int = 0  # frames a full queue dropped before they reached the writer
+    lost: int = 0  # frames after a write error, never logged
+    queue: int | None = None  # steps waiting for the writer
+    error: str | None = None
+    closed: bool = False
+    duration_s: float | None = None  # wall time since the file was opened

@@ -14,6 +14,7 @@ from typing import Any, Self
 
 from bench.config import Config
 from bench.pipeline.steps import StepOutput
+from bench.sinks.base import RecordingStatus
 
 log = logging.getLogger("bench.mcaplog")  # one logger for everything about MCAP logs
 
@@ -114,15 +115,15 @@ class QueuedSink:
     def queue_depth(self) -> int:
         return self._queue.qsize()
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> RecordingStatus:
         """The recording's figures for a status line or the TUI."""
-        return {
-            "path": str(self.path),
-            "frames": self.frames_logged,
-            "bytes": self.bytes_written,
-            "dropped": self.dropped,
-            "lost": self.frames_lost,
-            "queue": self.queue_depth,
-            "error": self.error,
-            "closed": self._closed,
-        }
+        return RecordingStatus(
+            path=str(self.path),
+            frames=self.frames_logged,
+            bytes=self.bytes_written,
+            dropped=self.dropped,
+            lost=self.frames_lost,
+            queue=self.queue_depth,
+            error=self.error,
+            closed=self._closed,
+        )

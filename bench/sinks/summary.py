@@ -25,6 +25,7 @@ def summary_table(stats: Stats, title: str = "summary") -> Table:
         ("unknown IDs", f"{stats.unknown_id}"),
         ("UART link errors", f"{stats.link_errors}"),
         ("log parse errors", f"{stats.parse_errors}"),
+        ("time outliers / clock steps", f"{stats.outliers} / {stats.clock_steps}"),
         (
             "gaps ch1/ch2/ch3",
             "/".join(str(c.gaps) for c in stats.channels),

@@ -1,7 +1,7 @@
 """The bench TUI: a thin App that lays out the panels and maps keys to session actions.
 
 The App never blocks on acquisition: a timer (4 Hz) starts a worker thread that copies a
-:class:`~bench.live.runner.Snapshot` from the runner and draws the plot, then posts both back. At
+:class:`~bench.live.view.Snapshot` from the session and draws the plot, then posts both back. At
 most one snapshot is in flight, so a slow terminal only lowers the display rate and never
 backs up the receive path (the runner's bounded queue and drop counters are shown).
 """
@@ -30,8 +30,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, Static
 
 from bench.errors import BenchError
-from bench.live.runner import HISTORY, Snapshot
-from bench.live.session import Session
+from bench.live.view import HISTORY, SessionLike, Snapshot
 from bench.replay.player import ReplayStatus, speed_label
 from bench.tui.help import HelpScreen
 from bench.tui.messages import SessionStopped, SnapshotReady
@@ -93,7 +92,7 @@ def next_tolerance(current: float, direction: int) -> float:
 
 
 class BenchApp(App[int]):
-    """Live or replay view of one Session."""
+    """Live or replay view of one session (anything :class:`SessionLike`)."""
 
     CSS_PATH = "bench.tcss"
     TITLE = "ACB-3 bench"
@@ -116,7 +115,7 @@ class BenchApp(App[int]):
 
     def __init__(
         self,
-        session: Session,
+        session: SessionLike,
         *,
         poll_hz: float = 4.0,
         window_s: float = 10.0,
@@ -246,7 +245,7 @@ class BenchApp(App[int]):
         return plot, rate_values
 
     def _rows_needed(self) -> int:
-        rate = self.session.runner.config.sample_rate_hz if self.session.runner else 1000
+        rate = self.session.sample_rate_hz
         last = self.last_snapshot
         if last is not None and last.board is not None and int(last.board["sample_rate"]) > 0:
             rate = int(last.board["sample_rate"])
@@ -351,7 +350,7 @@ class BenchApp(App[int]):
             if not s.running:
                 text.append("  stopped", style="yellow")
         if self.session.recorder.active:
-            failed = s is not None and s.recording is not None and s.recording.get("error")
+            failed = s is not None and s.recording is not None and s.recording.error
             if failed:  # the recording panel says why; the header must not claim REC
                 text.append("  ✖ LOG FAILED", style="bold white on red")
             else:
@@ -372,7 +371,7 @@ class BenchApp(App[int]):
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         if action in REPLAY_ACTIONS:
             return self.session.replay is not None
-        if action in ("record", "mark", "tolerance") and self.session.runner is None:
+        if action in ("record", "mark", "tolerance") and not self.session.controllable:
             return None
         return True
 
@@ -525,8 +524,7 @@ class BenchApp(App[int]):
         error: str | None = None
         try:
             self.session.stop()
-            if self.session.runner is not None:
-                error = self.session.runner.error
+            error = self.session.error
         except Exception as exc:
             error = repr(exc)
         self.post_message(SessionStopped(error))

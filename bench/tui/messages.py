@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.text import Text
 from textual.message import Message
 
-from bench.live.runner import Snapshot
+from bench.live.view import Snapshot
 
 
 class SnapshotReady(Message):

@@ -5,11 +5,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from bench.engine.client import EngineSession
-    from bench.live.session import Session
+    from bench.live.view import SessionLike
 
 
-def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
+def run_tui(session: SessionLike, **app_kwargs: Any) -> int:
     """Start the session, run the App in this terminal, and always stop the session (a live
     one runs in the engine process, :mod:`bench.engine.client`; the App cannot tell). Even a
     Ctrl-C while Textual is still being imported stops the session."""
@@ -21,4 +20,4 @@ def run_tui(session: Session | EngineSession, **app_kwargs: Any) -> int:
         code = app.run()
     finally:
         session.stop()
-    return int(code or 0) if not (session.runner and session.runner.error) else 1
+    return 1 if session.error else int(code or 0)

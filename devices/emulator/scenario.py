@@ -12,14 +12,13 @@ calibration config. The annotated reference of every key is ``devices/scenarios/
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from devices.errors import ConfigError
-from devices.textfile import path_or_packaged, read_text_file
+from devices.textfile import parse_toml, path_or_packaged, read_text_file
 from devices.tomlcheck import Table, is_integer
 from protocol.layout import (
     DEFAULT_BASE,
@@ -425,8 +424,8 @@ def _parse_fault(file: str, i: int, item: Any, duration: float) -> Fault:
             params[key] = t.integer(key, default, -255, 255)
             if params[key] % 256 == 0:
                 raise t.error(key, "must not be a multiple of 256 (that is no jump)")
-        elif key == "rate_hz":
-            params[key] = t.num(key, default, 0.0, 1e5)
+        elif key == "rate_hz":  # at most one spike per sample at the ICD's top rate
+            params[key] = t.num(key, default, 0.0, 1000.0)
         elif key == "amplitude_mps2" or key == "value_mps2" or key == "offset_mps2":
             params[key] = t.num(key, default, -1000.0, 1000.0)
         elif key == "rate_mps2_per_s":
@@ -463,6 +462,17 @@ _TOP_KEYS = (
 )
 
 
+MAX_FAULTS = 256
+"""Most faults one scenario may list (each is a pass over the whole stream)."""
+
+
+def _bounded(top: Table, key: str, most: int) -> list[Any]:
+    items = top.array(key)
+    if len(items) > most:
+        raise top.error(key, f"at most {most} [[{key}]] tables, got {len(items)}")
+    return items
+
+
 def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scenario:
     """Validate a parsed TOML document into a Scenario. Raises ConfigError naming the key."""
     top = Table(source, "", dict(data))
@@ -496,7 +506,8 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
         faults=tuple(
-            _parse_fault(source, i, item, duration) for i, item in enumerate(top.array("faults"), 1)
+            _parse_fault(source, i, item, duration)
+            for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
         ),
         source=source,
     )
@@ -505,11 +516,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
 
 def parse_scenario(text: str, source: str = "<string>") -> Scenario:
     """Parse scenario TOML text (``source`` names it in error messages)."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
-    return scenario_from_dict(data, source)
+    return scenario_from_dict(parse_toml(text, source), source)
 
 
 def resolve_scenario_path(name: str | Path) -> Path:

@@ -132,7 +132,8 @@ def train_motion(phases: tuple[TrainPhase, ...], v0: float, x0: float, t: np.nda
         v[sel] = vs + a * tau
         x[sel] = xs + vs * tau + 0.5 * a * tau * tau  # tau stops growing once stopped
         t1 = t0 + ph.duration_s
-        v1 = vs + a * run
+        v1 = vs + a * run if run == ph.duration_s else 0.0  # stopped: exactly, so the
+        # next phase's direction test cannot read a rounding residue (-5e-17) as reversing
         x1 = xs + vs * run + 0.5 * a * run * run
         after = t >= t1
         acc[after] = 0.0

@@ -17,7 +17,6 @@ from bench.records.events import EventKind
 MAX_POINTS = 6000
 """Points per plotted line: longer series are reduced to a min/max envelope."""
 
-PLOTS = ("gradient", "slopes", "votes", "errors")
 
 
 def _envelope(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple:

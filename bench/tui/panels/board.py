@@ -6,7 +6,7 @@ from __future__ import annotations
 from rich.text import Text
 from textual.widgets import Static
 
-from bench.live.runner import Snapshot
+from bench.live.view import Snapshot
 from bench.records.events import EventKind
 from bench.tui.panels import MISSING, num
 from protocol.layout import BoardState

@@ -16,7 +16,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Digits, Static
 
-from bench.fusion.reference import VOTES
+from bench.records.results import VOTE_SLOPES
 from bench.tui.panels import MISSING, grade_state, num
 
 PAIR_NAMES = ("g12", "g23", "g13")
@@ -39,7 +39,7 @@ def pair_table(row: np.void | None, tolerance: float) -> Table:
     table.add_column("", justify="center", min_width=6)
     table.add_column("|Δ| ‰", justify="right")
     for k in range(3):
-        p, q = VOTES[k]
+        p, q = VOTE_SLOPES[k]
         cmp = f"{VOTE_NAMES[k]} {PAIR_NAMES[p][1:]}~{PAIR_NAMES[q][1:]}"
         if row is None:
             table.add_row(PAIR_NAMES[k], MISSING, MISSING, cmp, Text(MISSING), MISSING)

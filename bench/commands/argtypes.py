@@ -1,0 +1,32 @@
+"""argparse types for numbers an operator types: range-checked, with the range in the message."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def bounded_float(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
+    """A float in (lo, hi]: argparse shows ``argument --x: must be in (lo, hi] unit``."""
+    shown = f"({lo:g}, {hi:g}]" + (f" {unit}" if unit else "")
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected a number in {shown}, got {text!r}"
+            ) from None
+        if not (math.isfinite(value) and lo < value <= hi):
+            raise argparse.ArgumentTypeError(f"must be in {shown}, got {text!r}")
+        return value
+
+    parse.__name__ = "number"
+    return parse
+
+
+SECONDS = bounded_float(0.0, 1e7, "s")
+"""A run's length: positive, finite, at most ~115 days."""
+SPEED = bounded_float(0.0, 1000.0, "x real time")
+"""A virtual board's time factor."""
