@@ -67,6 +67,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from bench.live.runner import LiveRunner  # the pipeline only for this command
+
     # from the first moment: a signal at any point ends the run with a finished log
     stop = threading.Event()
     signalled: list[int] = []
