@@ -148,7 +148,9 @@ def test_run_emulate_level_run_is_calibrated_as_built_and_replays_identically(
     assert main(["replay", str(mcap), "--config", str(empty), "--csv", str(nominal), "-q"]) == 0
     bad = read_csv(nominal)
     assert np.all(bad["v1"] == 0) and np.all(bad["v2"] == 0)
-    assert np.nanmean(bad["gradient_signed_permil"]) > 2.0
+    # the estimator: wrong angles leave a parity residual no channel explains, which its sigma
+    # takes in, so it withholds (it read +2.8 permil as if sure before it did)
+    assert np.isnan(bad["gradient_signed_permil"]).mean() > 0.9
 
 
 def test_tui_replay_of_an_mcap_uses_the_recorded_calibration(

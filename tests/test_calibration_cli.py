@@ -25,6 +25,7 @@ expect = "pass"
 seed = 9
 duration_s = 50.0
 vertical_curve_m = 100.0
+vertical_curve_accel = true
 [[scenario.track]]
 length_m = 100.0
 gradient_permil = 5.0
