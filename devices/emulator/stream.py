@@ -162,7 +162,7 @@ class _Run:
         self.count_into = count_into
         self.rate = sc.sample_rate_hz
         self.n = sc.n_samples
-        self.step = max(1, int(round(chunk_s * self.rate)))
+        self.step = max(1, round(chunk_s * self.rate))
         self.start_us = fx.to_us(sc.start_time_s)
         duration_us = fx.to_us(sc.duration_s)
         self.jumps = [f for f in sc.faults if f.kind == "counter_jump"]
@@ -196,26 +196,33 @@ class _Run:
     def _sample_us(self, idx: np.ndarray) -> np.ndarray:
         return (idx * 1_000_000 + self.rate // 2) // self.rate
 
-    def _spike_plans(self) -> dict[int, list[tuple[int, np.ndarray, np.ndarray, int]]]:
-        """Per spike fault, per channel: (channel, starts, signs, last sample of the
-        window), drawn as apply_value_fault draws them for the whole run."""
-        plans: dict[int, list[tuple[int, np.ndarray, np.ndarray, int]]] = {}
+    def _spike_plans(self) -> dict[int, list[_Spikes]]:
+        """Per spike fault, per channel, the spike positions apply_value_fault draws for the
+        whole window (as bits: 1/8 byte per sample); their signs are drawn as chunks need
+        them (they come after the positions from the same generator, in position order)."""
+        plans: dict[int, list[_Spikes]] = {}
         for f in self.sc.faults:
             if f.kind != "spike":
                 continue
             rng = self.pick_rng[f.index]
-            lo, hi = fx.to_us(f.start_s), fx.to_us(f.end_s)
-            i0 = self._first_sample_at(lo)
-            i1 = self._first_sample_at(hi)
-            idx = np.arange(i0, max(i0, i1), dtype=np.int64)
+            i0 = self._first_sample_at(fx.to_us(f.start_s))
+            length = max(0, self._first_sample_at(fx.to_us(f.end_s)) - i0)
             plans[f.index] = []
             for ch in fx.target_channels(f):
-                if len(idx) == 0:
+                if length == 0:
                     continue
-                expected = f.params["rate_hz"] * len(idx) / self.rate
-                starts = np.unique(rng.choice(idx, size=min(rng.poisson(expected), len(idx))))
-                signs = np.where(rng.random(len(starts)) < 0.5, -1.0, 1.0)
-                plans[f.index].append((ch, starts, signs, int(idx[-1])))
+                expected = f.params["rate_hz"] * length / self.rate
+                size = min(rng.poisson(expected), length)
+                bits = np.zeros(length, dtype=bool)
+                for done in range(0, size, 1 << 20):  # rng.choice(idx, size), in pieces
+                    bits[rng.integers(0, length, size=min(1 << 20, size - done))] = True
+                count = int(np.count_nonzero(bits))
+                signs = np.random.Generator(type(rng.bit_generator)())
+                signs.bit_generator.state = rng.bit_generator.state
+                for done in range(0, count, 1 << 20):  # past the signs: the next channel's
+                    rng.random(min(1 << 20, count - done))  # (advance() would drop a
+                    # buffered half-word of the position draws)
+                plans[f.index].append(_Spikes(ch, i0, length, np.packbits(bits), signs))
         return plans
 
     def _first_sample_at(self, us: int) -> int:
@@ -300,13 +307,11 @@ class _Run:
                 hit[f.index] = _mask(rows, m)
             elif f.kind == "spike":
                 mask = np.zeros(m, dtype=bool)
-                for ch, starts, signs, end in self.spikes[f.index]:
-                    row = values[ch - 1]
-                    for k in range(f.params["width_samples"]):
-                        at = starts + k
-                        keep = (at <= end) & (at >= a) & (at < a + m)
-                        row[at[keep] - a] += signs[keep] * f.params["amplitude_mps2"]
-                        mask[at[keep] - a] = True
+                width, amp = f.params["width_samples"], f.params["amplitude_mps2"]
+                for plan in self.spikes[f.index]:
+                    at, value = plan.pulses(a, m, width, amp)
+                    np.add.at(values[plan.channel - 1], at, value)  # in order, as k by k
+                    mask[at] = True
                 hit[f.index] = mask
         codes, over = quantise(values)
         status = np.where(over, STATUS_OVR, 0).astype(np.uint8)
@@ -514,6 +519,46 @@ class _Run:
         truth["speed_mps"] = motion.speed_mps
         truth["position_m"] = motion.position_m
         return truth
+
+
+class _Spikes:
+    """One channel's spikes of a spike fault: positions as bits over the window, signs drawn
+    in position order as the chunks reach them (those reaching into the next chunk kept)."""
+
+    def __init__(
+        self, channel: int, i0: int, length: int, bits: np.ndarray, signs: np.random.Generator
+    ) -> None:
+        self.channel, self.i0, self.length, self.bits, self.signs = channel, i0, length, bits, signs
+        self.drawn = 0  # window offsets below this have their signs drawn
+        self.kept = np.zeros(0, dtype=np.int64)  # starts (window offsets) still reaching on
+        self.kept_sign = np.zeros(0, dtype=np.float64)
+
+    def _starts(self, lo: int, hi: int) -> np.ndarray:
+        """Window offsets in [lo, hi) where a spike starts."""
+        lo, hi = max(lo, 0), min(hi, self.length)
+        if lo >= hi:
+            return np.zeros(0, dtype=np.int64)
+        b0 = lo // 8
+        raw = np.unpackbits(self.bits[b0 : (hi + 7) // 8])[lo - 8 * b0 : hi - 8 * b0]
+        return np.flatnonzero(raw) + lo
+
+    def pulses(self, a: int, m: int, width: int, amp: float) -> tuple[np.ndarray, np.ndarray]:
+        """Local sample indices and values to add for chunk [a, a + m), ordered as
+        apply_value_fault adds them (by offset k within the pulse, then by start)."""
+        hi = a + m - self.i0
+        new = self._starts(self.drawn, hi)
+        self.drawn = max(self.drawn, min(hi, self.length))
+        sign = np.where(self.signs.random(len(new)) < 0.5, -1.0, 1.0)
+        starts = np.concatenate([self.kept, new])
+        signs = np.concatenate([self.kept_sign, sign])
+        live = starts + width - 1 >= a - self.i0  # still reaching into this chunk
+        starts, signs = starts[live], signs[live]
+        reach = starts + width - 1 >= hi  # reaching into the next chunk too
+        self.kept, self.kept_sign = starts[reach], signs[reach]
+        at = (starts[None, :] + np.arange(width, dtype=np.int64)[:, None]).ravel()
+        value = np.tile(signs * amp, width)
+        keep = (at < self.length) & (at >= a - self.i0) & (at < hi)
+        return at[keep] + self.i0 - a, value[keep]
 
 
 class _Reorder:
