@@ -25,12 +25,15 @@ from protocol.records import LinkError
 class SourceNotice(NamedTuple):
     """Something a source reports that is not a frame: a bad log line, a disconnect, a reconnect.
 
-    kind is one of: "parse_error", "truncated", "disconnect", "reconnect", "info".
+    kind is one of: "parse_error", "truncated", "disconnect", "reconnect", "overflow", "info".
+    ``count`` is how many frames an "overflow" notice stands for (frames the kernel dropped
+    at a full socket receive buffer since the previous notice); 0 for the other kinds.
     """
 
     t: float
     kind: str
     detail: str
+    count: int = 0
 
 
 @dataclass(slots=True)

@@ -10,6 +10,7 @@ opened itself, a reopen with backoff and a "reconnect" notice.
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -125,8 +126,18 @@ def describe_config(config: dict[str, Any]) -> str:
 
 
 def open_bus(config: dict[str, Any]) -> can.BusABC:
-    """Build the bus from a resolved config; any failure is one BenchError line."""
+    """Build the bus from a resolved config; any failure is one BenchError line.
+
+    socketcan gets :class:`devices.socketcan_rx.SocketcanRxBus` (python-can's bus with a
+    large receive buffer and the kernel's drop count; ``rcvbuf`` in the config sizes it);
+    every other interface is python-can's own.
+    """
     try:
+        if config.get("interface") == "socketcan":
+            from devices.socketcan_rx import SocketcanRxBus
+
+            kwargs = {k: v for k, v in config.items() if k != "interface"}
+            return SocketcanRxBus(**kwargs)
         return can.Bus(ignore_config=True, **config)
     except Exception as exc:  # backends raise anything from CanError to ImportError/OSError
         raise BenchError(f"cannot open can bus {describe_config(config)}: {one_line(exc)}") from exc
@@ -160,6 +171,10 @@ class CanBusSource(LiveSource):
         self.burst_limit = max(1, int(burst_limit))
         self.reconnector = Reconnector(backoff_initial, backoff_max)
         self._closed = False
+        self.kernel_drops = 0
+        """Frames the kernel dropped at the socket (socketcan), over every reconnect."""
+        self._bus_drops = 0  # the current bus's count when it was last reported
+        self._opened = True  # a bus (re)opened whose receive buffer is not reported yet
         self._config: dict[str, Any] | None
         if bus is not None:
             if interface is not None or channel is not None or bitrate is not None or kwargs:
@@ -198,7 +213,9 @@ class CanBusSource(LiveSource):
         if bus is None:
             return self._reconnect(timeout)
         msgs: list[can.Message] = []
-        notices: list[SourceNotice] = []
+        notices = self._buffer_notice(bus) if self._opened else []
+        self._opened = False
+        failure: Exception | None = None
         try:
             msg = bus.recv(max(0.0, timeout))
             if msg is not None:
@@ -209,13 +226,54 @@ class CanBusSource(LiveSource):
                         break
                     msgs.append(msg)
         except Exception as exc:  # CanError, OSError, ...: backends differ, none may escape
-            detail = f"{self.description}: {one_line(exc)}"
+            failure = exc
+            self._drain(bus, msgs)
+        notices += self._overflow_notice(bus, msgs)
+        if failure is not None:
+            detail = f"{self.description}: {one_line(failure)}"
             notices.append(SourceNotice(time.time(), "disconnect", detail))
             self._drop_bus()
         return SourceBatch(frames_from_messages(msgs), [], notices)
 
+    def _drain(self, bus: can.BusABC, msgs: list[can.Message]) -> None:
+        """Take the frames a failing bus still holds. A socket reports an error before the
+        frames queued ahead of it (socketcan: ENETDOWN when the link goes down), and
+        closing it would lose them; reading on after the error returns them."""
+        with contextlib.suppress(Exception):  # a bus that fails again has nothing left
+            while len(msgs) < self.burst_limit:
+                msg = bus.recv(0)
+                if msg is None:
+                    break
+                msgs.append(msg)
+
+    def _buffer_notice(self, bus: can.BusABC) -> list[SourceNotice]:
+        """An "info" notice with the socket receive buffer the kernel granted (socketcan)."""
+        granted = getattr(bus, "rcvbuf_bytes", None)
+        if granted is None:
+            return []
+        asked = int(getattr(bus, "rcvbuf_requested", 0))
+        detail = f"{self.description}: socket receive buffer {granted} bytes"
+        if granted < 2 * asked:  # the kernel doubles what it grants
+            detail += f" (asked for {asked}: capped by net.core.rmem_max)"
+        return [SourceNotice(time.time(), "info", detail)]
+
+    def _overflow_notice(self, bus: can.BusABC, msgs: list[can.Message]) -> list[SourceNotice]:
+        """An "overflow" notice when the kernel's drop count of this socket went up."""
+        drops = int(getattr(bus, "kernel_drops", 0))
+        if drops == self._bus_drops:
+            return []
+        lost, self._bus_drops = drops - self._bus_drops, drops
+        self.kernel_drops += lost
+        t = msgs[-1].timestamp if msgs else time.time()  # the frame that brought the count
+        detail = (
+            f"{self.description}: the kernel dropped {lost} frames at the socket "
+            f"(receive buffer full; {self.kernel_drops} in all)"
+        )
+        return [SourceNotice(t, "overflow", detail, lost)]
+
     def _drop_bus(self) -> None:
         bus, self._bus = self._bus, None
+        self._bus_drops = 0  # the next socket counts from 0
         self.reconnector.dropped()
         if bus is not None and self._owns_bus:
             # the adapter is already gone; a failing shutdown has nothing left to report
@@ -228,10 +286,19 @@ class CanBusSource(LiveSource):
         if config is None:  # a bus we were handed cannot be rebuilt here
             time.sleep(max(0.0, timeout))
             return SourceBatch()
-        self._bus = self.reconnector.attempt(timeout, lambda: open_bus(config))
+        opened_at = [math.nan]
+
+        def reopen() -> can.BusABC:
+            opened_at[0] = time.time()
+            return open_bus(config)
+
+        self._bus = self.reconnector.attempt(timeout, reopen)
         if self._bus is None:
             return SourceBatch()
-        return SourceBatch(notices=[SourceNotice(time.time(), "reconnect", self.description)])
+        self._opened = True
+        # stamped when the new socket was opened: every frame it receives comes after it
+        notice = SourceNotice(opened_at[0], "reconnect", self.description)
+        return SourceBatch(notices=[notice])
 
     def close(self) -> None:
         if self._closed:

@@ -35,6 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=SECONDS, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
+    p.add_argument(
+        "--status-every",
+        type=SECONDS,
+        metavar="S",
+        help="print the status line every S seconds (default 0.5 on a terminal, else 5)",
+    )
     p.set_defaults(func=run)
 
 
@@ -47,6 +53,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
         grad = f"{g:+7.2f}" if math.isfinite(g) else "invalid"
     valid = 100.0 * st.valid / st.samples if st.samples else 0.0
     gaps = sum(c.gaps for c in st.channels)
+    kdrop = f" kdrop {st.socket_drops}" if st.socket_drops else ""
     rec = ""
     if s.recording is not None:
         rec = f" log {s.recording.frames_text()}"
@@ -55,7 +62,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     return (
         f"{elapsed:7.1f}s {s.frames_received:9d} frames {rate:7.0f}/s  gradient {grad} permil  "
         f"valid {valid:5.1f}%  crc {st.crc_errors} gaps {gaps} link {st.link_errors} "
-        f"drop {s.frames_dropped}{rec}"
+        f"drop {s.frames_dropped}{kdrop}{rec}"
     )
 
 
@@ -125,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
     runner.recording = recording
     start = time.monotonic()
     tty = sys.stderr.isatty()
+    every = args.status_every if args.status_every is not None else (0.5 if tty else 5.0)
     last_print = 0.0
     runner.start()
     setup.start_board()
@@ -137,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
             if setup.emulator is not None and setup.emulator.done:
                 time.sleep(0.2)  # let the last frames arrive
                 break
-            if not args.quiet and elapsed - last_print >= (0.5 if tty else 5.0):
+            if not args.quiet and elapsed - last_print >= every:
                 last_print = elapsed
                 line = status_line(runner.snapshot(last=1), elapsed)
                 end = "" if tty else "\n"

@@ -55,6 +55,10 @@ class LatencyRing:
         return self._buf[: min(self._n, len(self._buf))].copy()
 
 
+CLOSE_TIMEOUT_S = 120.0
+"""How long :meth:`LiveRunner.stop` waits for the processing thread to close the sinks."""
+
+
 class LiveRunner:
     def __init__(
         self,
@@ -97,11 +101,22 @@ class LiveRunner:
         self._proc.start()
         return self
 
-    def stop(self, timeout: float = 10.0) -> None:
-        """Stop acquisition, drain the queue through the pipeline, flush and close sinks."""
+    def stop(self, timeout: float = 10.0, close_timeout: float = CLOSE_TIMEOUT_S) -> None:
+        """Stop acquisition, drain the queue through the pipeline, flush and close sinks.
+
+        Acquisition ends within ``timeout``; the processing thread, which works off what is
+        still queued and then closes the sinks (the MCAP summary, the CSV), gets up to
+        ``close_timeout``: a backlog on a loaded machine takes long, and a run that returned
+        before its sinks were closed would end its process with an unfinished log. Past
+        that, :attr:`error` says so."""
         self._stop.set()
         self._acq.join(timeout)
-        self._proc.join(timeout)
+        self._proc.join(max(timeout, close_timeout))
+        if self._proc.is_alive() and self.error is None:
+            self.error = (
+                f"closing the run's outputs took longer than {max(timeout, close_timeout):g} s: "
+                "its log may be unfinished"
+            )
         with contextlib.suppress(Exception):
             self.source.close()
 

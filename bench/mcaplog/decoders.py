@@ -48,4 +48,9 @@ def link_error_from_json(m: bytes | memoryview) -> LinkError:
 
 def notice_from_json(m: bytes | memoryview) -> SourceNotice:
     d = json.loads(bytes(m))
-    return SourceNotice(json_float(d.get("t")), str(d.get("kind", "")), str(d.get("detail", "")))
+    return SourceNotice(
+        json_float(d.get("t")),
+        str(d.get("kind", "")),
+        str(d.get("detail", "")),
+        int(d.get("count") or 0),  # absent in logs written before it existed
+    )

@@ -180,6 +180,7 @@ class MessageEncoder:
                 ("t", S.json_text(float(n.t))),
                 ("kind", json.dumps(n.kind)),
                 ("detail", json.dumps(n.detail)),
+                ("count", str(int(n.count))),
             )
             for n in notices
         ]

@@ -391,12 +391,16 @@ LINK_ERROR_SCHEMA: dict[str, object] = {
 NOTICE_SCHEMA: dict[str, object] = {
     "title": "acb3.bench.SourceNotice",
     "description": "Something the source reported that is not a frame (bad log line, "
-    "disconnect, reconnect, truncation).",
+    "disconnect, reconnect, truncation, frames the kernel dropped at the socket).",
     "type": "object",
     "properties": {
         "t": {"type": "number", "description": "s; null = NaN"},
         "kind": {"type": "string"},
         "detail": {"type": "string"},
+        "count": {
+            "type": "integer",
+            "description": "overflow: frames the kernel dropped since the last notice; else 0",
+        },
     },
 }
 HEALTH_CHANNEL_FIELDS = (
@@ -422,6 +426,7 @@ HEALTH_TOTAL_FIELDS = (
     "status_frames",
     "speed_frames",
     "dropped_frames",
+    "socket_drops",
 )
 HEALTH_SCHEMA: dict[str, object] = {
     "title": "acb3.bench.Health",

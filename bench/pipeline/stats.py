@@ -68,6 +68,7 @@ class Stats:
         default_factory=lambda: [0, 0, 0]
     )  # samples failing v1, v2, v3
     samples_lost: int = 0
+    socket_drops: int = 0  # frames the kernel dropped at the socket (SOCKET_OVERFLOW events)
     status_frames: int = 0
     speed_frames: int = 0
     events: Counter[int] = field(default_factory=Counter)
@@ -115,6 +116,8 @@ class Stats:
             setattr(self, attr, getattr(self, attr) + count(per_kind, kind))
         if count(per_kind, EventKind.SAMPLES_LOST):
             self.samples_lost += int(events["value"][kinds == EventKind.SAMPLES_LOST].sum())
+        if count(per_kind, EventKind.SOCKET_OVERFLOW):
+            self.socket_drops += int(events["value"][kinds == EventKind.SOCKET_OVERFLOW].sum())
 
     def _count_events_scalar(self, kinds: list[int], channels: list[int], events) -> None:
         """count_events for the few events of a live step, without numpy calls."""
@@ -130,6 +133,8 @@ class Stats:
                 setattr(self, attr, getattr(self, attr) + 1)
             if kind == EventKind.SAMPLES_LOST:
                 self.samples_lost += int(events["value"][i])
+            elif kind == EventKind.SOCKET_OVERFLOW:
+                self.socket_drops += int(events["value"][i])
 
     def count_results(self, results: np.ndarray) -> None:
         n = len(results)
@@ -193,6 +198,7 @@ class Stats:
             "degraded": self.degraded,
             "vote_failures": list(self.vote_failures),
             "samples_lost": self.samples_lost,
+            "socket_drops": self.socket_drops,
             "channels": [
                 {k: v for k, v in vars(c).items() if k not in ("first_t", "last_t")}
                 for c in self.channels

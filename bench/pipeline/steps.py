@@ -38,6 +38,7 @@ _NOTICE_KINDS = {
     "truncated": EventKind.PARSE_ERROR,
     "disconnect": EventKind.DISCONNECT,
     "reconnect": EventKind.RECONNECT,
+    "overflow": EventKind.SOCKET_OVERFLOW,  # value: the notice's count of frames lost
 }
 _VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
 _NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
@@ -333,5 +334,5 @@ class Pipeline:
         for notice in batch.notices:
             kind = _NOTICE_KINDS.get(notice.kind)
             if kind is not None:
-                parts.append(make_events(kind, notice.t))
+                parts.append(make_events(kind, notice.t, 0, -1, notice.count))
         return concat_events(parts)

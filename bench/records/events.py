@@ -40,6 +40,7 @@ class EventKind(IntEnum):
     # value = its receive-minus-board time against the stream's, ms
     TIME_OUTLIER = 24  # channel, n: a lone frame whose receive time was off (frame used); value ms
     CLOCK_STEP = 25  # receive time minus board time stepped (host or board clock); value = ms
+    SOCKET_OVERFLOW = 26  # value = frames the kernel dropped at a full socket receive buffer
 
 
 EVENT_DTYPE = np.dtype(
@@ -174,6 +175,8 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append("status " + "|".join(status_names(value)))
     elif kind is EventKind.VOTE_FAIL:
         parts.append("failed " + ",".join(f"v{i + 1}" for i in range(3) if value & (1 << i)))
+    elif kind is EventKind.SOCKET_OVERFLOW:
+        parts.append(f"{value} frames dropped by the kernel (socket receive buffer full)")
     elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
         parts.append(f"{value / 1000:+.3f} s")
     elif kind is EventKind.OUTPUT_ERROR:

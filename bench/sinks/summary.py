@@ -36,6 +36,8 @@ def summary_table(stats: Stats, title: str = "summary") -> Table:
         ),
         ("status-flagged", "/".join(str(c.status_flagged) for c in stats.channels)),
     ]
+    if stats.socket_drops:  # only a live socketcan bus can say (devices/socketcan_rx.py)
+        rows.insert(6, ("dropped by the kernel", f"{stats.socket_drops}"))
     for k, v in rows:
         table.add_row(k, v)
     return table

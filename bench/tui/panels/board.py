@@ -70,9 +70,11 @@ def board_lines(s: Snapshot, *, live: bool = True) -> Text:
         ("link", st.link_errors),
         ("parse", st.parse_errors),
         ("disc", st.events.get(int(EventKind.DISCONNECT), 0)),
+        ("kdrop", st.socket_drops),  # frames the kernel dropped at the socket (socketcan)
     ):
         err.append(f"{label} ")
-        err.append(str(n), style="yellow" if n and label != "ID" else "")
+        style = "yellow" if n and label != "ID" else ""
+        err.append(str(n), style="bold red" if n and label == "kdrop" else style)
         err.append(" ")
     line("bus", err)
     valid = f"{100.0 * st.valid / st.samples:.1f} %" if st.samples else MISSING
