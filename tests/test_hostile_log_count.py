@@ -76,6 +76,40 @@ def test_count_after_a_full_disk_is_the_files(tmp_path: Path, writer: str) -> No
     assert f"(the file holds {held} frames, " in proc.stderr
 
 
+def test_count_after_the_writer_is_killed_is_the_files(tmp_path: Path) -> None:
+    """kill -9 of the MCAP writer process mid-run: it had flushed more than it reported
+    (1 080 said, 1 442 in the file when this was written)."""
+    sc, mcap = tmp_path / "s.toml", tmp_path / "run.mcap"
+    sc.write_text(SCENARIO)
+    cmd = [sys.executable, "-m", "bench", "run", "--emulate", str(sc), "--mcap", str(mcap)]
+    cmd += ["--duration", "5", "--status-every", "0.25"]
+    env = {**os.environ, "BENCH_LOG_WRITER": "process"}
+    proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True, env=env)
+    assert proc.stderr is not None
+    lines = []
+    for line in proc.stderr:  # wait until the writer has reported frames, then kill it
+        lines.append(line)
+        m = re.search(r" log (\d+)f$", line.rstrip())
+        if m and int(m.group(1)) > 300:
+            break
+    writers = []
+    for task in Path(f"/proc/{proc.pid}/task").iterdir():
+        for pid in (task / "children").read_text().split():
+            if "writer_process" in Path(f"/proc/{pid}/cmdline").read_text():
+                writers.append(int(pid))
+    assert writers, "".join(lines)
+    for pid in writers:
+        os.kill(pid, signal.SIGKILL)
+    rest = proc.stderr.read()
+    assert proc.wait(120) != 0
+    err = "".join(lines) + rest
+    assert "Traceback" not in err
+    held = _frames_in(mcap)
+    status = [line for line in err.splitlines() if " frames " in line and "/s" in line]
+    assert re.search(rf" log FAILED {held}f in file$", status[-1]), (status[-1], held)
+    assert f"(the file holds {held} frames, " in err
+
+
 def _snapshot(rec: RecordingStatus) -> Any:
     """What status_line reads of a Snapshot."""
     from bench.pipeline.stats import Stats
@@ -100,3 +134,35 @@ def test_status_line_shows_no_writer_count_after_a_failure() -> None:
     assert "10667 frames in the file" in _figures(known)
     fine = RecordingStatus(path="x.mcap", frames=5)
     assert status_line(_snapshot(fine), 1.0).endswith(" log 5f")
+
+
+def test_tui_recording_that_failed_keeps_the_files_count(tmp_path: Path) -> None:
+    """The TUI's last-recording status after a failure: the count read back from the cut
+    file, not the writer's (here a fake writer that says 7)."""
+    from bench.live.session import Recorder
+    from bench.mcaplog.emulation import write_emulation_chunks
+    from devices.emulator import scenario_from_dict
+    from devices.emulator.stream import simulate_chunks
+
+    whole = tmp_path / "whole.mcap"
+    sc = scenario_from_dict({"duration_s": 20.0, "sample_rate_hz": 200, "seed": 3})
+    sent = write_emulation_chunks(whole, simulate_chunks(sc, chunk_s=0.5), sc, chunk_size=8192)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
+    held = _frames_in(cut)
+    assert 0 < held < sent["frames"]
+
+    class FailedSink:
+        path, error = str(cut), f"{cut}: No space left on device"
+
+        def status(self) -> RecordingStatus:
+            return RecordingStatus(path=self.path, frames=7, error=self.error)
+
+        def close(self) -> None:
+            pass
+
+    rec = Recorder(sink=FailedSink())
+    rec.close()
+    assert rec.last_status is not None and rec.last_status.file_frames == held
+    assert f"{held} frames in the file" in _figures(rec.last_status)
+    assert " 7 frames" not in _figures(rec.last_status)
