@@ -128,6 +128,8 @@ class LineLedger:
                 raw = self._f.readline(1 << 20)
             return "\n"
         text = raw.decode("utf-8", "replace")
+        if text.endswith("\r\n"):  # as a text file in universal-newline mode reads it
+            text = text[:-2] + "\n"
         if text.strip():
             self._pending.append((self.lineno, text))
         return text
@@ -167,6 +169,9 @@ class LineLedger:
             return self._pending.pop()
         return None
 
+    def has_unread(self) -> bool:
+        return bool(self._pending or self.overlong)
+
     def unread(self) -> list[tuple[int, str]]:
         """The lines handed out and not matched to a message since the last call."""
         out, self._pending = self._pending, []
@@ -203,7 +208,8 @@ def read_text_log(
             try:
                 for msg in reader:
                     ledger.take_last()  # the line that produced ``msg``
-                    yield from judged(None, None)
+                    if ledger.has_unread():
+                        yield from judged(None, None)
                     yield msg
             except Exception as exc:  # python-can raises anything on bad text
                 # a raise on a line that holds nothing (a blank line) loses no frame
