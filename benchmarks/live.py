@@ -130,6 +130,11 @@ class LiveRun:
     tui_snapshots: int = 0
     stats: dict[str, Any] = field(default_factory=dict)
     errors: list[str] = field(default_factory=list)
+    # a results CSV beside the MCAP (csv_opener): what the run said about it
+    output_errors: list[str] = field(default_factory=list)
+    csv_rows: int = 0
+    csv_rows_lost: int = 0
+    output_error_events: int = 0  # OUTPUT_ERROR events in the finished MCAP
 
     @property
     def lossless(self) -> bool:
@@ -188,6 +193,12 @@ def _count_logged(path: Path) -> tuple[int, bool]:
         return int(log.message_counts().get(FRAME_TOPIC, 0)), bool(log.complete)
 
 
+def _output_error_events(path: Path) -> int:
+    from bench.mcaplog.recorded import read_events
+
+    return sum(1 for e in read_events(path) if str(e.get("message", "")).startswith("OUTPUT_ERROR"))
+
+
 def run_live(
     rate: float | None,
     seconds: float,
@@ -197,8 +208,12 @@ def run_live(
     faults: list[dict[str, Any]] | None = None,
     on_progress: Any = None,
     mcap_path: Path | None = None,
+    csv_opener: Any = None,
 ) -> LiveRun:
-    """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s)."""
+    """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s).
+
+    ``csv_opener`` (without the TUI): also write the live results CSV, as `bench run --csv`
+    does, through this stream opener (e.g. a file that fails mid-run)."""
     import can
 
     from bench.config import Config
@@ -211,6 +226,8 @@ def run_live(
     speed = 1.0 if rate is None else rate / base
     run = LiveRun(base * speed, seconds, tui)
     if tui:
+        if csv_opener is not None:
+            raise ValueError("a results CSV is for runs without the TUI")
         return _run_live_tui(run, speed, faults, on_progress, mcap_path, workdir)
     scenario = scenario_from_dict(
         board_scenario(min(3600.0, seconds * speed + 2.0), faults=faults or []), "benchmark"
@@ -225,7 +242,14 @@ def run_live(
         path = Path(mcap_path) if mcap_path is not None else Path(tmp) / "run.mcap"
         sink_class = recording_sink_class()  # what `bench run` logs with
         mcap = sink_class(path, config, {"source": "benchmark virtual board", "mode": "benchmark"})
-        runner = LiveRunner(source, config, [mcap, lat], description="benchmark")
+        sinks: list[Any] = [mcap, lat]
+        csv = None
+        if csv_opener is not None:
+            from bench.sinks.tables import csv_sink
+
+            csv = csv_sink(Path(tmp) / "live.csv", live=True, opener=csv_opener)
+            sinks.append(csv)
+        runner = LiveRunner(source, config, sinks, description="benchmark")
         runner.recording = mcap
         runner.start()
         player = start_virtual_board(sim, channel, speed=speed)
@@ -256,6 +280,10 @@ def run_live(
             run.errors.append(f"mcap: {mcap.error}")
         run.logged, run.mcap_complete = _count_logged(path)
         run.stats = runner.pipeline.stats.as_dict()
+        run.output_errors = list(runner.output_errors)
+        if csv is not None:
+            run.csv_rows, run.csv_rows_lost = csv.rows, csv.rows_lost
+            run.output_error_events = _output_error_events(path)
     run.results = lat.results
     run.p50_ms, run.p99_ms, run.max_ms = lat.percentile(50), lat.percentile(99), lat.max_ms
     run.snapshot_p99_ms = float(snap.latency_ms[1])

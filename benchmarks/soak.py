@@ -17,6 +17,12 @@ It passes when, over the whole run:
   ERROR by any bench module, not in the runner, the logger or the TUI (the engine process
   reports its own thread exceptions and ERROR records).
 
+With ``--csv-fails-after-bytes N`` (without the TUI) the run also writes the live results
+CSV, as ``bench run --csv`` does, to a file that takes N bytes and then refuses every write
+with ENOSPC (a disk filling up mid-run). The same promises must hold, and the failure must be
+loud: the runner reports it, an OUTPUT_ERROR event is in the MCAP, result rows are counted
+as lost and the run's exit status (as ``bench run`` computes it) is non-zero.
+
 It prints the figures as it goes and at the end, writes them as JSON, and exits 1 on a
 failure. ``pytest -m soak`` (or ``BENCH_SOAK=1 pytest tests/test_soak.py``) runs it.
 """
@@ -24,7 +30,10 @@ failure. ``pytest -m soak`` (or ``BENCH_SOAK=1 pytest tests/test_soak.py``) runs
 from __future__ import annotations
 
 import argparse
+import errno
+import io
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -64,6 +73,35 @@ def fault_schedule(duration_s: float, cycles: int = 3) -> list[dict[str, Any]]:
     return faults
 
 
+class FailingFile(io.RawIOBase):
+    """A file that takes ``limit`` bytes, then refuses every write with ENOSPC (a full disk
+    without root or a tmpfs)."""
+
+    def __init__(self, path: str, limit: int) -> None:
+        self._f = open(path, "wb")  # noqa: SIM115 - closed in close()
+        self.limit, self.n = limit, 0
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:  # type: ignore[override]
+        if self.n + len(b) > self.limit:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self.n += len(b)
+        return self._f.write(b)
+
+    def close(self) -> None:
+        self._f.close()
+        super().close()
+
+
+def failing_csv_opener(limit: int) -> Any:
+    """A stream opener for the results CSV whose file fills up after ``limit`` bytes."""
+    import pyarrow as pa
+
+    return lambda target: pa.PythonFile(FailingFile(str(target), limit), mode="w")
+
+
 def engine_rss_mb(session: Any) -> float:
     """Resident set size of the engine process a TUI session runs in (0 without one): with
     the TUI attached, the run's memory is there (bench/engine/)."""
@@ -85,6 +123,7 @@ def soak(
     tui: bool = True,
     mem_bound_mb: float = 64.0,
     mcap: Path | None = None,
+    csv_fails_after_bytes: int | None = None,
     log: Any = print,
 ) -> dict[str, Any]:
     from benchmarks.live import KEEP_UP_S, run_live
@@ -115,7 +154,18 @@ def soak(
         f"({len({f['kind'] for f in faults})} kinds), MCAP on, TUI {'on' if tui else 'off'}"
     )
     try:
-        run = run_live(None, seconds, tui=tui, faults=faults, on_progress=progress, mcap_path=mcap)
+        opener = (
+            None if csv_fails_after_bytes is None else failing_csv_opener(csv_fails_after_bytes)
+        )
+        run = run_live(
+            None,
+            seconds,
+            tui=tui,
+            faults=faults,
+            on_progress=progress,
+            mcap_path=mcap,
+            csv_opener=opener,
+        )
     finally:
         problems.uninstall()
     mem.append((time.monotonic() - t0, rss_mb()))
@@ -132,6 +182,15 @@ def soak(
         "no exception": not (run.errors or problems.seen),
         "ran the full time": run.seconds >= seconds and run.rate_achieved > 0,
     }
+    if csv_fails_after_bytes is not None:
+        # bench run's exit status: 1 when a secondary output failed or lost rows
+        exit_code = 1 if (run.output_errors or run.csv_rows_lost) else 0
+        checks["CSV failed mid-run (rows written, then rows lost)"] = (
+            run.csv_rows > 0 and run.csv_rows_lost > 0
+        )
+        checks["CSV failure loud (reported, OUTPUT_ERROR logged, exit 1)"] = (
+            bool(run.output_errors) and run.output_error_events > 0 and exit_code == 1
+        )
     result = {
         "minutes": minutes,
         "tui": tui,
@@ -174,6 +233,11 @@ def report(r: dict[str, Any], log: Any = print) -> None:
     shown = {k: v for k, v in st.items() if isinstance(v, int) and v}
     log(f"  bench counted: {shown}")
     log(f"  TUI snapshots applied: {run['tui_snapshots']}")
+    if run.get("output_errors"):
+        log(
+            f"  CSV rows written {run['csv_rows']}, lost {run['csv_rows_lost']}; "
+            f"{run['output_error_events']} OUTPUT_ERROR events; {run['output_errors'][0]}"
+        )
     log(f"  fault kinds: {', '.join(r['fault_kinds'])}")
     for name, ok in r["checks"].items():
         log(f"  [{'x' if ok else ' '}] {name}")
@@ -190,13 +254,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mem-bound-mb", type=float, default=64.0)
     ap.add_argument("--mcap", type=Path, help="keep the run's MCAP here")
     ap.add_argument("--json", metavar="OUT", default=None, help="write the figures as JSON")
+    ap.add_argument(
+        "--csv-fails-after-bytes",
+        type=int,
+        metavar="N",
+        help="also write the results CSV, to a file that fails with ENOSPC after N bytes "
+        "(needs --no-tui)",
+    )
     args = ap.parse_args(argv)
+    if args.csv_fails_after_bytes is not None and not args.no_tui:
+        ap.error("--csv-fails-after-bytes needs --no-tui (the CSV is written in this process)")
 
     def log(text: str) -> None:
         print(text, file=sys.stderr, flush=True)
 
     r = soak(
-        args.minutes, tui=not args.no_tui, mem_bound_mb=args.mem_bound_mb, mcap=args.mcap, log=log
+        args.minutes,
+        tui=not args.no_tui,
+        mem_bound_mb=args.mem_bound_mb,
+        mcap=args.mcap,
+        csv_fails_after_bytes=args.csv_fails_after_bytes,
+        log=log,
     )
     report(r, log)
     if args.json:

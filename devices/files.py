@@ -33,6 +33,7 @@ from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, 
 from devices.bus import frames_from_messages, one_line
 from devices.candump import CandumpFileSource
 from devices.errors import BenchError
+from devices.text_logs import CSV_HEADER, TEXT_FORMATS, TextFormat, read_text_log
 from protocol.frames import empty_frames
 from protocol.uart import MAX_BODY, deframe_bytes
 
@@ -122,7 +123,7 @@ class _GuardedBLFReader(BLFReader):
         yield from super()._parse_data(data)
 
 
-_CSV_HEADER = "timestamp,arbitration_id,extended,remote,error,dlc,data"
+_CSV_HEADER = CSV_HEADER
 """The header line python-can's CSVWriter writes and its CSVReader skips unread."""
 _RESULTS_CSV_START = "time_s,counter,"
 """How a bench results CSV (bench.replay.CsvSink) begins."""
@@ -135,7 +136,10 @@ _TRUNCATION_ERRORS = (struct.error, EOFError, zlib.error, BLFParseError)
 
 
 class CanLogReaderSource(DiskFileSource):
-    """A .asc/.blf/.trc/.csv log through python-can's readers, in batches of frames."""
+    """A .asc/.blf/.trc/.csv log through python-can's readers, in batches of frames.
+
+    The text formats go through :func:`devices.text_logs.read_text_log`: every frame line
+    python-can skips or raises on is a ``parse_error`` notice and reading goes on."""
 
     def __init__(self, path: str | os.PathLike[str], **reader_kwargs: Any) -> None:
         self.path = Path(path)
@@ -143,7 +147,13 @@ class CanLogReaderSource(DiskFileSource):
         self._size = check_readable(self.path)
         self._kwargs = {**_READER_DEFAULTS.get(self.path.suffix.lower(), {}), **reader_kwargs}
         self.frames = 0
-        self._reader: can.io.generic.MessageReader | None = self._open()
+        self.parse_errors = 0
+        self._text = TEXT_FORMATS.get(self.path.suffix.lower())
+        self._reader: can.io.generic.MessageReader | None = None
+        if self._text is None:
+            self._reader = self._open()
+        else:
+            self._check_format()
 
     def _open(self) -> can.io.generic.MessageReader:
         """Open the reader now, so a file that is not this format fails at open time."""
@@ -191,6 +201,9 @@ class CanLogReaderSource(DiskFileSource):
 
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         max_frames = max(1, int(max_frames))
+        if self._text is not None:
+            yield from self._text_batches(self._text, max_frames)
+            return
         reader = self._reader if self._reader is not None else self._open()
         self._reader = None
         self._pos = self.frames = 0
@@ -228,10 +241,49 @@ class CanLogReaderSource(DiskFileSource):
         if msgs or notices:
             yield SourceBatch(frames_from_messages(msgs), [], notices)
 
+    def _text_batches(self, fmt: TextFormat, max_frames: int) -> Iterator[SourceBatch]:
+        self._pos = self.frames = self.parse_errors = 0
+        f = self._open_binary()
+        msgs: list[can.Message] = []
+        notices: list[SourceNotice] = []
+        try:
+            for item in read_text_log(fmt, f, self.path, **self._kwargs):
+                if isinstance(item, SourceNotice):
+                    notices.append(item)
+                    self.parse_errors += 1
+                else:
+                    msgs.append(item)
+                if len(msgs) >= max_frames or len(notices) >= max_frames:
+                    self._pos = _tell_or(f, self._pos)
+                    self.frames += len(msgs)
+                    yield SourceBatch(frames_from_messages(msgs), [], notices)
+                    msgs, notices = [], []
+        except OSError as exc:
+            self.frames += len(msgs)
+            yield SourceBatch(frames_from_messages(msgs), [], notices)
+            yield self._read_failed(exc)
+            return
+        finally:
+            f.close()
+        self._pos = self._size
+        self.frames += len(msgs)
+        if not self.frames and not self.parse_errors and self._size:
+            detail = f"{self.path}: no CAN frames found (not a {self.path.suffix} log?)"
+            notices.append(SourceNotice(math.nan, "parse_error", detail))
+        if msgs or notices:
+            yield SourceBatch(frames_from_messages(msgs), [], notices)
+
     def close(self) -> None:
         if self._reader is not None:
             self._reader.stop()
             self._reader = None
+
+
+def _tell_or(f: Any, default: int) -> int:
+    try:
+        return int(f.tell())
+    except (OSError, ValueError):
+        return default
 
 
 class UartCaptureSource(DiskFileSource):

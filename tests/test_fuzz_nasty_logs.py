@@ -27,6 +27,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
+from devices.writers import write_with_can_logger
 from protocol.crc import frame_crc8_batch
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,8 +80,6 @@ def _mcap_bytes(tmp: Path, frames: np.ndarray) -> bytes:
 
 
 def _blf_bytes(tmp: Path, frames: np.ndarray) -> bytes:
-    from devices.writers import write_with_can_logger
-
     path = tmp / "src.blf"
     write_with_can_logger(path, frames)
     return path.read_bytes()
@@ -231,6 +230,17 @@ def build_corpus(d: Path) -> dict[str, Path]:
     if at >= 0 and len(broken) > at + 64:
         broken[at + 40 : at + 64] = b"\x00" * 24
     files["broken_zlib.blf"] = bytes(broken)
+
+    # python-can text logs with lines its readers skip or raise on (issue 16 item 11)
+    for ext in ("asc", "trc", "csv"):
+        src = d / f"src.{ext}"
+        write_with_can_logger(src, frames)
+        text = src.read_text().splitlines()
+        for k in range(len(text) // 3, len(text) // 3 + 27):
+            line = text[k]
+            text[k] = line.replace(" 0.", "-0.", 1) if ext == "asc" else line[: len(line) // 2]
+        text[len(text) // 2] = text[len(text) // 2].replace("1", "G")
+        files[f"damaged_lines.{ext}"] = "\n".join(text) + "\n"
 
     # wrong extensions
     files["candump_text.blf"] = good_log

@@ -43,3 +43,24 @@ def test_soak_1khz_every_fault_tui_and_mcap(request: pytest.FixtureRequest, tmp_
     failed = [name for name, ok in result["checks"].items() if not ok]
     assert not failed, f"soak failed: {failed}\n{proc.stderr[-3000:]}"
     assert proc.returncode == 0
+
+
+@pytest.mark.soak
+def test_soak_with_the_csv_failing_mid_run(request: pytest.FixtureRequest, tmp_path: Path) -> None:
+    """The soak without the TUI, its results CSV on a disk that fills after 2 MB (~5 s of
+    rows): sent = received = logged still, and the failure is loud (issue 16)."""
+    if not _selected(request.config):
+        pytest.skip("soak: select with -m soak or BENCH_SOAK=1")
+    minutes = float(os.environ.get("BENCH_SOAK_MINUTES", "10"))
+    out = tmp_path / "soak.json"
+    cmd = [sys.executable, "-m", "benchmarks.soak", "--minutes", str(minutes), "--no-tui"]
+    cmd += ["--csv-fails-after-bytes", "2000000", "--json", str(out)]
+    proc = subprocess.run(
+        cmd, cwd=ROOT, capture_output=True, text=True, timeout=minutes * 60 + 300, check=False
+    )
+    sys.stderr.write(proc.stderr)
+    assert out.exists(), proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    failed = [name for name, ok in result["checks"].items() if not ok]
+    assert not failed, f"soak failed: {failed}\n{proc.stderr[-3000:]}"
+    assert "CSV failure loud (reported, OUTPUT_ERROR logged, exit 1)" in result["checks"]

@@ -103,44 +103,44 @@ def run(args: argparse.Namespace) -> int:
         sc = sc.with_changes(seed=args.seed)
     if args.calibration_out:
         _write_calibration(sc, args.calibration_out, args.scenario)
+    if not realtime:  # files only: the run goes to them chunk by chunk, in bounded memory
+        lines, counts = _write_streamed(sc, args.out, args.truth)
+        for line in lines:
+            print(line)
+        if args.out and not args.quiet:
+            print(counts.summary())
+            print(_calibration_note(sc, args.out, args.calibration_out))
+        return 0
     sim = simulate(sc)
     if args.truth:
         write_truth_csv(args.truth, sim.truth)
         print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
-    if args.out:
-        print(_write_out(sim, args.out))
-        if not args.quiet:
-            print(sim.summary())
-            print(_calibration_note(sc, args.out, args.calibration_out))
-        return 0
-    if not realtime:
-        return 0
     return _play(args, sim)
 
 
-def _write_out(sim: Any, out: str) -> str:
-    """The run as a file; an MCAP records its board's calibration as built, so that
-    `bench replay FILE.mcap` reproduces the emulated run."""
-    from bench.config_choice import is_mcap, scenario_config
-    from devices.emulator import write_output
+def _write_streamed(sc: Any, out: str | None, truth: str | None) -> tuple[list[str], Any]:
+    """The run into ``out`` and/or the truth CSV as it is computed; an MCAP records its
+    board's calibration as built, so that `bench replay FILE.mcap` reproduces the run."""
+    from bench.config_choice import scenario_config
+    from devices.emulator.stream_out import write_streamed
 
-    if not is_mcap(out):
-        return write_output(sim, out)
-    from bench.mcaplog.emulation import write_emulation
+    def mcap_writer(path: Path, chunks: Any, scenario: Any) -> dict[str, int]:
+        from bench.mcaplog.emulation import write_emulation_chunks
 
-    path = Path(out)
-    config = scenario_config(sim.scenario)
-    try:
-        counts = write_emulation(
-            path,
-            sim,
-            sim.scenario.path or None,
-            config=config,
-            metadata={"calibration": config.describe()},
-        )
-    except OSError as exc:
-        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
-    return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {path}"
+        config = scenario_config(scenario)
+        try:
+            return write_emulation_chunks(
+                path,
+                chunks,
+                scenario,
+                scenario.path or None,
+                config=config,
+                metadata={"calibration": config.describe()},
+            )
+        except OSError as exc:
+            raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+
+    return write_streamed(sc, out, truth, mcap_writer=mcap_writer)
 
 
 def _calibration_note(sc: Any, out: str, sheet: str | None) -> str:

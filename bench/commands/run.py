@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import signal
 import sys
@@ -55,7 +56,7 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     kdrop = f" kdrop {st.socket_drops}" if st.socket_drops else ""
     rec = ""
     if s.recording is not None:
-        rec = f" log {s.recording.frames or 0}f"
+        rec = f" log {s.recording.frames_text()}"
     if s.output_errors:  # a secondary output (the CSV, the live stream) has failed
         rec += " CSV FAILED" if any("CSV" in e for e in s.output_errors) else " OUTPUT FAILED"
     return (
@@ -175,12 +176,25 @@ def _report(
     if tty and not args.quiet:
         print(file=sys.stderr)
     snap = runner.snapshot(last=1)
+    log_error = getattr(recording, "error", None) if recording is not None else None
+    held = None
+    if log_error:  # the writer's count is not what the file holds; the file is final now
+        from bench.mcaplog.recorded import count_frames
+
+        held = count_frames(recording.path)
+        if snap.recording is not None:
+            status = dataclasses.replace(snap.recording, error=log_error, file_frames=held)
+            snap = dataclasses.replace(snap, recording=status)
     if not args.quiet:
         print(status_line(snap, time.monotonic() - start), file=sys.stderr)
         print_summary(runner.pipeline.stats, title=f"run on {setup.description}")
-    log_error = getattr(recording, "error", None) if recording is not None else None
     if log_error:
-        print(f"bench: error: the MCAP log failed: {log_error}", file=sys.stderr)
+        holds = "cannot be read back" if held is None else f"holds {held} frames"
+        print(
+            f"bench: error: the MCAP log failed: {log_error} (the file {holds}, "
+            f"{runner.frames_received} received)",
+            file=sys.stderr,
+        )
     elif recording is not None and not args.quiet:
         print(f"bench: log written: {recording.path}", file=sys.stderr)
     if runner.error:

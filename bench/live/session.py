@@ -114,7 +114,12 @@ class Recorder:
         try:
             sink.close()
             with contextlib.suppress(Exception):
-                self.last_status = with_duration(recording_status(sink), duration)
+                status = with_duration(recording_status(sink), duration)
+                if status.error:  # its writer's count is not what the file holds
+                    from bench.mcaplog.recorded import count_frames
+
+                    status = dataclasses.replace(status, file_frames=count_frames(status.path))
+                self.last_status = status
         finally:
             done.set()
             with self._lock:

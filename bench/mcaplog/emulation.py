@@ -6,7 +6,8 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -88,12 +89,84 @@ def write_emulation(
         getattr(emulation, "link_errors", None) or [], key=lambda e: (math.isnan(e.t), e.t)
     )
     truth = _as_table(getattr(emulation, "truth", None))
-    truth_cols = S.columns_for(truth.dtype) if truth is not None else []
-    base_id = (
-        config.base_id if config is not None else int(getattr(emulation, "base_id", DEFAULT_BASE))
+    return _write(
+        path,
+        iter([(frames, truth)]),
+        truth.dtype if truth is not None else None,
+        link_errors,
+        getattr(emulation, "scenario", None),
+        getattr(emulation, "seed", None),
+        int(getattr(emulation, "base_id", DEFAULT_BASE)),
+        scenario_path,
+        config,
+        metadata,
+        chunk_size,
     )
+
+
+def write_emulation_chunks(
+    path: str | Path,
+    chunks: Iterator[Any],
+    scenario: Any,
+    scenario_path: str | Path | None = None,
+    *,
+    config: Config | None = None,
+    metadata: Mapping[str, str] | None = None,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
+) -> dict[str, int]:
+    """:func:`write_emulation` for a run that comes in chunks (each with ``frames`` and
+    ``truth``, e.g. :func:`devices.emulator.stream.simulate_chunks`): each chunk's frames,
+    then its truth, so the run is never in memory whole."""
+    from devices.emulator.simulation import TRUTH_DTYPE
+
+    parts = ((_as_frames(c.frames), c.truth) for c in chunks)
+    base_id = int(getattr(scenario, "base_id", DEFAULT_BASE))
+    return _write(
+        path,
+        parts,
+        TRUTH_DTYPE,
+        [],
+        scenario,
+        None,
+        base_id,
+        scenario_path,
+        config,
+        metadata,
+        chunk_size,
+    )
+
+
+def _with_last(items: Iterator[Any]) -> Iterator[tuple[Any, bool]]:
+    """Each item with whether it is the last one."""
+    prev, have = None, False
+    for item in items:
+        if have:
+            yield prev, False
+        prev, have = item, True
+    if have:
+        yield prev, True
+
+
+def _write(
+    path: str | Path,
+    parts: Iterator[tuple[np.ndarray, np.ndarray | None]],
+    truth_dtype: np.dtype | None,
+    link_errors: list[Any],
+    scenario: Any,
+    seed: Any,
+    base_id: int,
+    scenario_path: str | Path | None,
+    config: Config | None,
+    metadata: Mapping[str, str] | None,
+    chunk_size: int,
+) -> dict[str, int]:
+    truth_cols = S.columns_for(truth_dtype) if truth_dtype is not None else []
+    if config is not None:
+        base_id = config.base_id
     wall = time.time_ns()
     mf = McapFile(path, chunk_size=chunk_size)
+    n_frames = n_truth = 0
+    by_id: Counter[int] = Counter()
     try:
         run = {"source": "emulator", "mode": "emulate"}
         scen_bytes = b""
@@ -101,8 +174,7 @@ def write_emulation(
             sp = Path(scenario_path)
             scen_bytes = sp.read_bytes()
             run["scenario"] = sp.name
-        scenario = getattr(emulation, "scenario", None)
-        seed = getattr(emulation, "seed", getattr(scenario, "seed", None))
+        seed = seed if seed is not None else getattr(scenario, "seed", None)
         if seed is not None:
             run["seed"] = str(seed)
         if getattr(scenario, "description", ""):
@@ -117,45 +189,47 @@ def write_emulation(
                 {"path": str(scenario_path), "toml": scen_bytes.decode("utf-8", "replace")},
             )
             mf.add_attachment(Path(scenario_path).name, scen_bytes, log_time=wall)
-        enc = MessageEncoder(mf, base_id, [S.truth_topic(truth_cols)] if truth is not None else [])
-        outcome = decode_batch(frames, base_id).outcome
+        topics = [S.truth_topic(truth_cols)] if truth_dtype is not None else []
+        enc = MessageEncoder(mf, base_id, topics)
         le_t = np.array([e.t for e in link_errors], dtype=np.float64)
         le_done = 0
         step = 65536
-        for start in range(0, len(frames), step):
-            part = frames[start : start + step]
-            enc.write_frames(part, outcome[start : start + step], wall)
-            last = start + step >= len(frames)
-            upto = (
-                len(link_errors)
-                if last
-                else int(np.searchsorted(le_t, part["t"][-1], side="right"))
-            )
-            if upto > le_done:
-                enc.write_link_errors(link_errors[le_done:upto], wall)
-                le_done = upto
-            mf.maybe_flush()
+        for (frames, truth), final in _with_last(parts):
+            outcome = decode_batch(frames, base_id).outcome
+            for start in range(0, len(frames), step):
+                part = frames[start : start + step]
+                enc.write_frames(part, outcome[start : start + step], wall)
+                if final and start + step >= len(frames):
+                    upto = len(link_errors)  # the rest go before the truth
+                else:
+                    upto = int(np.searchsorted(le_t, part["t"][-1], side="right"))
+                if upto > le_done:
+                    enc.write_link_errors(link_errors[le_done:upto], wall)
+                    le_done = upto
+                mf.maybe_flush()
+            n_frames += len(frames)
+            ids, counts = np.unique(frames["id"], return_counts=True)
+            by_id.update(dict(zip(ids.tolist(), counts.tolist(), strict=True)))
+            if truth is not None:
+                t = _time_column(truth)
+                for start in range(0, len(truth), step):
+                    enc.write_truth(
+                        truth[start : start + step], truth_cols, t[start : start + step], wall
+                    )
+                    mf.maybe_flush()
+                n_truth += len(truth)
         if le_done < len(link_errors):
             enc.write_link_errors(link_errors[le_done:], wall)
-        if truth is not None:
-            t = _time_column(truth)
-            for start in range(0, len(truth), step):
-                enc.write_truth(
-                    truth[start : start + step], truth_cols, t[start : start + step], wall
-                )
-                mf.maybe_flush()
         mf.flush_chunk()
-        ids, counts = np.unique(frames["id"], return_counts=True)
-        by_id = dict(zip(ids.tolist(), counts.tolist(), strict=True))
         mf.add_metadata(
             "summary",
             {
                 "stopped_utc": utc_now(),
-                "frames": str(len(frames)),
-                "frames_logged": str(len(frames)),
+                "frames": str(n_frames),
+                "frames_logged": str(n_frames),
                 "frames_by_id": json.dumps({f"0x{k:03X}": v for k, v in sorted(by_id.items())}),
                 "link_errors": str(len(link_errors)),
-                "truth_rows": str(0 if truth is None else len(truth)),
+                "truth_rows": str(n_truth if truth_dtype is not None else 0),
                 "log_time_substituted": str(enc.substituted),
             },
         )
@@ -164,8 +238,8 @@ def write_emulation(
         mf.abort()
         raise
     return {
-        "frames": len(frames),
+        "frames": n_frames,
         "link_errors": len(link_errors),
-        "truth": 0 if truth is None else len(truth),
+        "truth": n_truth if truth_dtype is not None else 0,
         "bytes": mf.position,
     }

@@ -35,6 +35,18 @@ def read_frames(
     return _with(source, lambda lg: lg.read_frames())
 
 
+def count_frames(path: str | Path) -> int | None:
+    """How many frames a log file holds, cut or not (every complete chunk counts); None
+    when it cannot be read. What a failed recording is reported to hold."""
+    try:
+        with McapLog(path) as lg:
+            if lg.channel_id(S.FRAME_TOPIC) is None:
+                return 0
+            return sum(len(lg.frame_records(c)) for c in lg.iter_chunks())
+    except Exception:  # a file that cannot be read at all: its count is unknown
+        return None
+
+
 def read_results(source: str | Path | McapLog) -> np.ndarray:
     """The recorded fusion results (RESULT_DTYPE), as the live run computed them."""
     return _with(source, lambda lg: lg.table(S.RESULT_TOPIC, S.RESULT_COLUMNS, RESULT_DTYPE))

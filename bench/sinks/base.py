@@ -37,3 +37,12 @@ class RecordingStatus:
     error: str | None = None
     closed: bool = False
     duration_s: float | None = None  # wall time since the file was opened
+    file_frames: int | None = None  # frames the file holds, counted after it failed
+
+    def frames_text(self) -> str:
+        """The frame count to show: after a failure the writer's count is not what the
+        file holds (chunks written, not yet reported; a writer killed), so only a count
+        read back from the file is shown."""
+        if self.error:
+            return "FAILED" if self.file_frames is None else f"FAILED {self.file_frames}f in file"
+        return "?f" if self.frames is None else f"{self.frames}f"

@@ -433,6 +433,14 @@ def _parse_fault(file: str, i: int, item: Any, duration: float) -> Fault:
         else:  # pragma: no cover - every parameter above has a rule
             raise AssertionError(key)
     t.done((*_COMMON_FAULT_KEYS, *FAULT_PARAMS[kind]))
+    if kind == "spike" and params["rate_hz"] * params["width_samples"] > MAX_SPIKE_DUTY:
+        # wider and more frequent pulses would cover every sample many times over (and
+        # cost rate x width additions per second of run)
+        raise t.error(
+            "rate_hz",
+            f"x width_samples must be <= {MAX_SPIKE_DUTY:g} (spike samples per second at "
+            f"the ICD's top rate), got {params['rate_hz']:g} x {params['width_samples']}",
+        )
     return Fault(i, kind, target, start, end, params)
 
 
@@ -461,6 +469,9 @@ _TOP_KEYS = (
     "faults",
 )
 
+
+MAX_SPIKE_DUTY = 1000.0
+"""Most spike samples per second a spike fault may ask for (rate_hz x width_samples)."""
 
 MAX_FAULTS = 256
 """Most faults one scenario may list (each is a pass over the whole stream)."""

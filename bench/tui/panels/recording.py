@@ -41,7 +41,10 @@ def recording_table(status: RecordingStatus | None, last: RecordingStatus | None
 
 def _figures(status: RecordingStatus, *, duration: bool = True) -> str:
     parts = [size_text(status.bytes)]
-    if status.frames is not None:
+    if status.error:  # the writer's count is not what the file holds
+        if status.file_frames is not None:
+            parts.append(f"{status.file_frames} frames in the file")
+    elif status.frames is not None:
         parts.append(f"{status.frames} frames")
     if duration:
         parts.append(duration_text(status.duration_s))

@@ -1,0 +1,128 @@
+"""``bench emulate --out FILE [--truth CSV]`` in bounded memory: the run's chunks
+(:func:`devices.emulator.stream.simulate_chunks`) go to the files as they are computed.
+
+The files are byte for byte what :func:`devices.emulator.player.write_output` and
+:func:`devices.emulator.player.write_truth_csv` write from the whole ``simulate()`` (the
+candump writer streams; the UART bytes and the truth rows of consecutive chunks follow one
+another), and the summary is :meth:`Simulation.summary`'s text.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from devices.emulator.scenario import Scenario
+from devices.emulator.simulation import TRUTH_COLUMNS
+from devices.emulator.stream import CHUNK_S, Chunk, RunCounts, simulate_chunks
+from devices.errors import BenchError
+
+OUT_SUFFIXES = (".log", ".bin", ".mcap")
+
+McapStreamWriter = Callable[[Path, Iterator[Chunk], Scenario], dict[str, int]]
+"""The bench's MCAP writer for chunks (devices/ never imports bench/)."""
+
+
+def write_truth_rows(f: IO[bytes], truth: np.ndarray, header: bool) -> None:
+    """Truth rows as write_truth_csv writes them (the header line only when asked)."""
+    np.savetxt(
+        f,
+        np.column_stack([truth[c] for c in TRUTH_COLUMNS]),
+        fmt=["%.6f", "%d", "%.12g", "%.12g", "%.12g", "%.12g"],
+        delimiter=",",
+        header=",".join(TRUTH_COLUMNS) if header else "",
+        comments="",
+    )
+
+
+def write_streamed(
+    sc: Scenario,
+    out: str | Path | None,
+    truth: str | Path | None = None,
+    *,
+    mcap_writer: McapStreamWriter | None = None,
+    chunk_s: float = CHUNK_S,
+) -> tuple[list[str], RunCounts]:
+    """Run ``sc`` chunk by chunk into ``out`` (.log/.bin/.mcap) and/or the ``truth`` CSV.
+    Returns the lines to print (as the whole-run writers word them) and the run's counts."""
+    p = Path(out) if out is not None else None
+    suffix = p.suffix.lower() if p is not None else ""
+    if p is not None and suffix not in OUT_SUFFIXES:
+        raise BenchError(
+            f"{p}: unknown output type {suffix or '(none)'!r} (expected .log, .bin or .mcap)"
+        )
+    if suffix == ".mcap" and mcap_writer is None:
+        raise BenchError(
+            "mcap output needs the bench's MCAP writer (bench emulate passes it); "
+            "write .log or .bin instead"
+        )
+    counts = RunCounts(sc)
+    truth_rows = [0]
+    with contextlib.ExitStack() as stack:
+        truth_file = _open(stack, truth) if truth is not None else None
+
+        def chunks() -> Iterator[Chunk]:
+            first = True
+            for chunk in simulate_chunks(sc, uart=suffix == ".bin", chunk_s=chunk_s, counts=counts):
+                if truth_file is not None:
+                    _guarded(
+                        truth, lambda c=chunk, h=first: write_truth_rows(truth_file, c.truth, h)
+                    )
+                    truth_rows[0] += len(chunk.truth)
+                first = False
+                yield chunk
+
+        line = None
+        if p is None:
+            for _ in chunks():
+                pass
+        elif suffix == ".log":
+            line = _write_candump(p, chunks(), counts)
+        elif suffix == ".bin":
+            f = _open(stack, p)
+            for chunk in chunks():
+                _guarded(p, lambda c=chunk: f.write(c.uart))
+            line = (
+                f"wrote {counts.packets} UART packets ({counts.uart_bytes} bytes, "
+                f"{counts.packets_broken} broken by UART faults) to {p}"
+            )
+        else:
+            assert mcap_writer is not None
+            written = mcap_writer(p, chunks(), sc)
+            line = f"wrote {written.get('frames', counts.frames)} CAN frames and truth to {p}"
+    lines = []
+    if truth is not None:
+        lines.append(f"wrote truth of {truth_rows[0]} sampling instants to {truth}")
+    if line is not None:
+        lines.append(line)
+    return lines, counts
+
+
+def _write_candump(p: Path, chunks: Iterator[Chunk], counts: RunCounts) -> str:
+    from devices.writers import CandumpWriter
+
+    with CandumpWriter(p) as writer:
+        for chunk in chunks:
+            writer.write(chunk.frames)
+    return f"wrote {counts.frames} CAN frames to {p}"
+
+
+def _open(stack: contextlib.ExitStack, path: str | Path) -> IO[bytes]:
+    try:
+        return stack.enter_context(Path(path).open("wb"))
+    except OSError as exc:
+        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+
+
+def _guarded(path: Any, write: Callable[[], Any]) -> None:
+    try:
+        write()
+    except OSError as exc:
+        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+
+
+__all__ = ["OUT_SUFFIXES", "write_streamed", "write_truth_rows"]
