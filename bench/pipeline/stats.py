@@ -28,6 +28,7 @@ _TOTALS = {
     EventKind.OUTLIER: "outliers",
     EventKind.TIME_OUTLIER: "outliers",
     EventKind.CLOCK_STEP: "clock_steps",
+    EventKind.WRAP_GUESS: "wrap_guesses",
 }
 
 
@@ -61,6 +62,7 @@ class Stats:
     parse_errors: int = 0
     outliers: int = 0  # lone frames off the stream's time axis (bench.pipeline.timeline)
     clock_steps: int = 0  # receive (or board) clock steps survived
+    wrap_guesses: int = 0  # long gaps whose timestamp wraps the counter could not confirm
     samples: int = 0
     valid: int = 0
     degraded: int = 0
@@ -192,6 +194,7 @@ class Stats:
             "parse_errors": self.parse_errors,
             "outliers": self.outliers,
             "clock_steps": self.clock_steps,
+            "wrap_guesses": self.wrap_guesses,
             "samples": self.samples,
             "valid": self.valid,
             "valid_fraction": self.valid / self.samples if self.samples else 0.0,

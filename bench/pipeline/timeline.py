@@ -18,10 +18,12 @@ stream (up to host jitter and clock drift):
   reference from then on). If its board ticks throw it further than that, its board time
   is the odd one: it is dropped as an OUTLIER, and only if the next frame agrees with it
   (the board clock really jumped) does the stream follow it (CLOCK_STEP).
-* Timestamp wraps are bridged by receive time only when the gap it predicts is a whole
-  number of wraps to within BRIDGE_TOLERANCE_S (plus 100 ppm of the gap): a clock step
-  is almost never that, a real gap always is. A step of almost exactly k * 6.5536 s stays
-  indistinguishable from a gap, by any rule.
+* Timestamp wraps are bridged by receive time (:func:`gap_wraps`): a gap that is a whole
+  number of wraps to within BRIDGE_TOLERANCE_S (plus 100 ppm of the gap) bridges them. A
+  real gap whose receive delay changed (a link down/up) is further off, and so is a host
+  clock step without a gap: the sample counter picks between the two nearest wrap counts.
+  If it cannot tell, the nearest within GUESS_TOLERANCE_S is taken, a WRAP_GUESS notice.
+  A clock step of almost exactly k * 6.5536 s stays indistinguishable from a gap.
 
 Both assembly twins call :meth:`Timeline.slow` for every frame the fast check does not
 pass, so their decisions and events are the same by construction.
@@ -50,13 +52,20 @@ BRIDGE_TOLERANCE_S = 0.2
 BRIDGE_TOL_TICKS = BRIDGE_TOLERANCE_S / TICK_S
 BRIDGE_PPM = 1e-4
 """Relative clock drift allowed on top of BRIDGE_TOLERANCE_S over a long gap."""
+GUESS_TOLERANCE_S = 2.0
+"""How far (about 0.3 of a wrap) a receive-time gap may be from whole wraps and still be
+bridged to the nearest whole number when the counter cannot tell (a WRAP_GUESS notice)."""
+GUESS_TOL_TICKS = GUESS_TOLERANCE_S / TICK_S
+COUNTER_SLACK = 1
+"""Samples the counter may disagree with a candidate step (period estimate, rounding)."""
 
 HALF_CW = COUNTER_WRAP // 2
 HALF_TS = TS_WRAP // 2
-_OUTLIER, _TIME_OUTLIER, _CLOCK_STEP = (
+_OUTLIER, _TIME_OUTLIER, _CLOCK_STEP, _WRAP_GUESS = (
     int(EventKind.OUTLIER),
     int(EventKind.TIME_OUTLIER),
     int(EventKind.CLOCK_STEP),
+    int(EventKind.WRAP_GUESS),
 )
 _MS_LIMIT = float(2**62)
 
@@ -81,6 +90,45 @@ def board_step(d: int, c: int, c0: int, period: float, known: bool) -> int:
     if known:
         return est
     return est + (c - c0 - est + HALF_CW) % COUNTER_WRAP - HALF_CW
+
+
+def counter_fits(big_d: float, dc: int, period: float) -> bool:
+    """Whether a board-time step of ``big_d`` ticks agrees with a counter step ``dc``."""
+    miss = (dc - round(big_d / period) + HALF_CW) % COUNTER_WRAP - HALF_CW
+    return abs(miss) <= COUNTER_SLACK
+
+
+def gap_wraps(elapsed: float, d: int, dc: int, period: float) -> tuple[int, bool]:
+    """Whole timestamp wraps hidden in a step, and whether that is a guess.
+
+    ``elapsed`` is the step the receive clock measures (ticks, NaN for raw captures), ``d``
+    the centred timestamp step, ``dc`` the counter step. The receive-time gap within
+    BRIDGE_TOLERANCE_S of whole wraps bridges them. Further off (the receive delay changed
+    across the gap, or the host clock stepped), the two wrap counts nearest the receive
+    time are the candidates and the counter picks the one it agrees with: zero wraps for a
+    clock step without a gap, so that stays a CLOCK_STEP. If the counter cannot tell (it
+    agrees with both or neither, or the gap is too long for it), the nearest is taken
+    within GUESS_TOLERANCE_S and reported as a guess; otherwise none (the frame is then
+    judged by its offsets as a clock step or an outlier).
+    """
+    gap = elapsed - d
+    if not (math.isfinite(gap) and abs(elapsed) <= MAX_BRIDGE_TICKS):
+        return 0, False
+    near = round(gap / TS_WRAP)
+    miss = gap - near * TS_WRAP
+    if near > 0 and abs(miss) <= BRIDGE_TOL_TICKS + BRIDGE_PPM * abs(elapsed):
+        return near, False
+    other = near + (1 if miss > 0 else -1)
+    if max(near, other) <= 0:
+        return 0, False
+    fits: list[int] = []
+    if period > 0 and abs(elapsed / period) * BRIDGE_PPM <= 0.5:  # the counter still counts
+        fits = [k for k in (near, other) if k >= 0 and counter_fits(d + k * TS_WRAP, dc, period)]
+    if len(fits) == 1:
+        return fits[0], False
+    if near > 0 and abs(miss) <= GUESS_TOL_TICKS:
+        return near, True
+    return 0, False
 
 
 def vector_steps(
@@ -141,21 +189,17 @@ class Timeline:
         return self.take_notes()
 
     @staticmethod
-    def _ticks(t: float, ts: int, chain: Chain, ref_off: float) -> int:
-        """Unwrapped board time of a frame after ``chain``: the centred timestamp step, plus
-        the whole wraps a receive-time gap (against ``ref_off``) asks for, if it fits."""
+    def _ticks(
+        t: float, ts: int, c: int, chain: Chain, ref_off: float, period: float
+    ) -> tuple[int, int]:
+        """Unwrapped board time of a frame after ``chain``, and the wraps it bridged on a
+        guess (0: none). The centred timestamp step, plus the whole wraps a receive-time
+        gap (against ``ref_off``) asks for: see :func:`gap_wraps`."""
         ts0, big_t0 = chain[1], chain[2]
         d = (ts - ts0 + HALF_TS) % TS_WRAP - HALF_TS
         pred = (t - ref_off) / TICK_S  # board ticks the receive time predicts
-        elapsed = pred - big_t0
-        gap = elapsed - d
-        if math.isfinite(gap) and abs(elapsed) <= MAX_BRIDGE_TICKS:
-            wraps = round(gap / TS_WRAP)
-            if wraps > 0 and abs(gap - wraps * TS_WRAP) <= BRIDGE_TOL_TICKS + BRIDGE_PPM * abs(
-                elapsed
-            ):
-                d += TS_WRAP * wraps
-        return big_t0 + d
+        wraps, guessed = gap_wraps(pred - big_t0, d, c - chain[3], period)
+        return big_t0 + d + TS_WRAP * wraps, wraps if guessed else 0
 
     def _judge(
         self,
@@ -167,16 +211,17 @@ class Timeline:
         period: float,
         known: bool,
         max_n: int,
-    ) -> tuple[int, int, float, float, bool, bool]:
+    ) -> tuple[int, int, float, float, bool, bool, int]:
         """A frame placed after ``chain``: (T, n, receive offset, its change against
-        ``ref_off``, receive time disagrees, board time throws it ahead against its counter)."""
-        big_t = self._ticks(t, ts, chain, ref_off)
+        ``ref_off``, receive time disagrees, board time throws it ahead against its counter,
+        timestamp wraps bridged on a guess)."""
+        big_t, guess = self._ticks(t, ts, c, chain, ref_off, period)
         step = board_step(big_t - chain[2], c, chain[3], period, known)
         off = t - big_t * TICK_S
         dev = off - ref_off
         suspect = math.isfinite(ref_off) and not abs(dev) <= RX_TOLERANCE_S
         jump = chain[4] + step > max_n + WINDOW and (c - chain[3] - step) % COUNTER_WRAP != 0
-        return big_t, chain[4] + step, off, dev, suspect, jump
+        return big_t, chain[4] + step, off, dev, suspect, jump, guess
 
     def slow(
         self, t: float, ts: int, c: int, ch: int, period: float, known: bool, max_n: int
@@ -187,22 +232,24 @@ class Timeline:
         assert chain is not None
         ref_off = self.reference_offset()
         p, self.pending = self.pending, None
-        big_t, n, off, dev, suspect, jump = self._judge(
+        big_t, n, off, dev, suspect, jump, guess = self._judge(
             t, ts, c, chain, ref_off, period, known, max_n
         )
         if (suspect or jump) and p is not None:
             if p.placed and suspect and abs(off - p.off) <= RX_TOLERANCE_S:
                 self.notes.append((p.t_event, _CLOCK_STEP, 0, -1, ms(p.dev)))  # receive clock
-                return self._settle(t, ts, c, big_t, n)
+                return self._settle(t, ts, c, ch, big_t, n, guess)
             if not p.placed:
-                t2, n2, _, _, s2, j2 = self._judge(t, ts, c, p.chain, p.off, period, known, p.n)
+                t2, n2, _, _, s2, j2, g2 = self._judge(
+                    t, ts, c, p.chain, p.off, period, known, p.n
+                )
                 if not (s2 or j2):  # it agrees with the dropped frame: the board clock jumped
                     self.notes.append((p.t_event, _CLOCK_STEP, 0, -1, ms(p.dev)))
-                    return self._settle(t, ts, c, t2, n2)
+                    return self._settle(t, ts, c, ch, t2, n2, g2)
         if p is not None and p.placed:
             self.notes.append((p.t_event, _TIME_OUTLIER, p.channel, p.n, ms(p.dev)))
         if not (suspect or jump):
-            return self._settle(t, ts, c, big_t, n)
+            return self._settle(t, ts, c, ch, big_t, n, guess)
         t_board = ref_off + big_t * TICK_S  # the receive time its board time predicts
         if not math.isfinite(t_board):
             t_board = chain[0]
@@ -212,13 +259,19 @@ class Timeline:
         if not jump and max_n - WINDOW <= n <= max_n + WINDOW:
             self.pending = Pending(True, t_board, ch, n, off, dev, here)
             self.chain = here
+            if guess:
+                self.notes.append((t_board, _WRAP_GUESS, ch, n, guess))
             return n, big_t, t_board
         self.notes.append((t_board, _OUTLIER, ch, n, ms(dev)))
         self.pending = Pending(False, t_board, ch, n, off, dev, here)
         return None
 
-    def _settle(self, t: float, ts: int, c: int, big_t: int, n: int) -> tuple[int, int, float]:
+    def _settle(
+        self, t: float, ts: int, c: int, ch: int, big_t: int, n: int, guess: int
+    ) -> tuple[int, int, float]:
         """Place a frame that agrees with the reference (now itself)."""
+        if guess:
+            self.notes.append((t, _WRAP_GUESS, ch, n, guess))
         self.chain = (t, ts, big_t, c, n)
         self.ref = None
         return n, big_t, t

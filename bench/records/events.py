@@ -41,6 +41,8 @@ class EventKind(IntEnum):
     TIME_OUTLIER = 24  # channel, n: a lone frame whose receive time was off (frame used); value ms
     CLOCK_STEP = 25  # receive time minus board time stepped (host or board clock); value = ms
     SOCKET_OVERFLOW = 26  # value = frames the kernel dropped at a full socket receive buffer
+    WRAP_GUESS = 27  # channel, n: a long gap's timestamp wraps taken from the receive clock alone,
+    # the counter could not confirm them; value = wraps bridged
 
 
 EVENT_DTYPE = np.dtype(
@@ -61,6 +63,7 @@ SEVERITY = {
     EventKind.OUTLIER: "warning",
     EventKind.TIME_OUTLIER: "warning",
     EventKind.CLOCK_STEP: "info",
+    EventKind.WRAP_GUESS: "info",
 }
 
 
@@ -179,6 +182,8 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append(f"{value} frames dropped by the kernel (socket receive buffer full)")
     elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
         parts.append(f"{value / 1000:+.3f} s")
+    elif kind is EventKind.WRAP_GUESS:
+        parts.append(f"{value} timestamp wraps assumed across a gap (receive clock)")
     elif kind is EventKind.OUTPUT_ERROR:
         import os
 

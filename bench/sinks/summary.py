@@ -36,6 +36,8 @@ def summary_table(stats: Stats, title: str = "summary") -> Table:
         ),
         ("status-flagged", "/".join(str(c.status_flagged) for c in stats.channels)),
     ]
+    if stats.wrap_guesses:  # long gaps bridged on the receive clock alone (pipeline.timeline)
+        rows.append(("gap wraps guessed", f"{stats.wrap_guesses}"))
     if stats.socket_drops:  # only a live socketcan bus can say (devices/socketcan_rx.py)
         rows.insert(6, ("dropped by the kernel", f"{stats.socket_drops}"))
     for k, v in rows:
