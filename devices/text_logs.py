@@ -43,13 +43,19 @@ _ASC_NOT_FRAMES = re.compile(
     ) $"""
 )
 _ASC_DIRECTION = re.compile(r"(?i)\s(rx|tx)\s")
+_ASC_DATA = re.compile(r"(?i)\sd\s+\d{1,2}(\s+[0-9a-f]{2})+(\s|$)")
+"""A data frame's ``d <dlc> <bytes>``: a frame line even when its channel or direction is
+garbled (python-can then skips it, so it must be counted)."""
 _TRC_NOT_FRAMES_V1 = frozenset({"Warng", "Error"})
 _TRC_NOT_FRAMES_V2 = frozenset({"ST", "EC", "ER", "EV"})
 
 
 def asc_frame_line(reader: Any, line: str) -> bool:
     """Whether an ASC line is a CAN frame (not a header, comment, trigger or bus event)."""
-    return bool(_ASC_DIRECTION.search(line)) or not _ASC_NOT_FRAMES.match(line)
+    return (
+        bool(_ASC_DIRECTION.search(line) or _ASC_DATA.search(line))
+        or not _ASC_NOT_FRAMES.match(line)
+    )
 
 
 def trc_frame_line(reader: Any, line: str) -> bool:

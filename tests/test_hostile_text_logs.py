@@ -178,3 +178,12 @@ def test_replay_summary_counts_the_lines(
     assert "Traceback" not in err
     row = [line for line in (out + err).splitlines() if line.startswith("log parse errors")]
     assert row and row[0].split()[-1] == "27", out + err
+
+
+def test_asc_frame_with_garbled_channel_and_direction_is_counted(tmp_path: Path) -> None:
+    """' 0.000000 z  101   zRx   d 8 CF ...': python-can skips it as an event on no CAN
+    channel; its data bytes show it was a frame, so it is a parse error, not a silent loss."""
+    lines, rows = written(tmp_path, ".asc")
+    lines[rows[0]] = lines[rows[0]].replace(" 1  ", " z  ", 1).replace(" Rx ", "zRx ", 1)
+    got, notices = read(save(tmp_path, "garbled.asc", lines))
+    assert len(got) == N - 1 and len(notices) == 1

@@ -58,6 +58,9 @@ bridged to the nearest whole number when the counter cannot tell (a WRAP_GUESS n
 GUESS_TOL_TICKS = GUESS_TOLERANCE_S / TICK_S
 COUNTER_SLACK = 1
 """Samples the counter may disagree with a candidate step (period estimate, rounding)."""
+COUNTER_SPAN = 500_000
+"""Samples across which the counter still tells wraps apart (a period off by 1 ppm stays
+under half a sample); past that only the receive clock counts them."""
 
 HALF_CW = COUNTER_WRAP // 2
 HALF_TS = TS_WRAP // 2
@@ -102,14 +105,14 @@ def gap_wraps(elapsed: float, d: int, dc: int, period: float) -> tuple[int, bool
     """Whole timestamp wraps hidden in a step, and whether that is a guess.
 
     ``elapsed`` is the step the receive clock measures (ticks, NaN for raw captures), ``d``
-    the centred timestamp step, ``dc`` the counter step. The receive-time gap within
+    the centred timestamp step, ``dc`` the counter step. A receive-time gap within
     BRIDGE_TOLERANCE_S of whole wraps bridges them. Further off (the receive delay changed
-    across the gap, or the host clock stepped), the two wrap counts nearest the receive
-    time are the candidates and the counter picks the one it agrees with: zero wraps for a
-    clock step without a gap, so that stays a CLOCK_STEP. If the counter cannot tell (it
-    agrees with both or neither, or the gap is too long for it), the nearest is taken
+    across the gap, or the host clock stepped), the candidates are the two wrap counts
+    nearest the receive time and zero (a clock step without a gap), and the counter picks
+    the one it agrees with. If it agrees with several, or with none, the nearest is taken
     within GUESS_TOLERANCE_S and reported as a guess; otherwise none (the frame is then
-    judged by its offsets as a clock step or an outlier).
+    judged by its offsets, as a clock step or an outlier). Over a gap too long for the
+    counter, only the first rule bridges.
     """
     gap = elapsed - d
     if not (math.isfinite(gap) and abs(elapsed) <= MAX_BRIDGE_TICKS):
@@ -119,13 +122,11 @@ def gap_wraps(elapsed: float, d: int, dc: int, period: float) -> tuple[int, bool
     if near > 0 and abs(miss) <= BRIDGE_TOL_TICKS + BRIDGE_PPM * abs(elapsed):
         return near, False
     other = near + (1 if miss > 0 else -1)
-    if max(near, other) <= 0:
+    if max(near, other) <= 0 or not 0 < period * COUNTER_SPAN > abs(elapsed):
         return 0, False
-    fits: list[int] = []
-    if period > 0 and abs(elapsed / period) * BRIDGE_PPM <= 0.5:  # the counter still counts
-        fits = [k for k in (near, other) if k >= 0 and counter_fits(d + k * TS_WRAP, dc, period)]
+    fits = {k for k in (near, other, 0) if k >= 0 and counter_fits(d + k * TS_WRAP, dc, period)}
     if len(fits) == 1:
-        return fits[0], False
+        return fits.pop(), False
     if near > 0 and abs(miss) <= GUESS_TOL_TICKS:
         return near, True
     return 0, False
@@ -240,9 +241,7 @@ class Timeline:
                 self.notes.append((p.t_event, _CLOCK_STEP, 0, -1, ms(p.dev)))  # receive clock
                 return self._settle(t, ts, c, ch, big_t, n, guess)
             if not p.placed:
-                t2, n2, _, _, s2, j2, g2 = self._judge(
-                    t, ts, c, p.chain, p.off, period, known, p.n
-                )
+                t2, n2, _, _, s2, j2, g2 = self._judge(t, ts, c, p.chain, p.off, period, known, p.n)
                 if not (s2 or j2):  # it agrees with the dropped frame: the board clock jumped
                     self.notes.append((p.t_event, _CLOCK_STEP, 0, -1, ms(p.dev)))
                     return self._settle(t, ts, c, ch, t2, n2, g2)
