@@ -52,10 +52,9 @@ _TRC_NOT_FRAMES_V2 = frozenset({"ST", "EC", "ER", "EV"})
 
 def asc_frame_line(reader: Any, line: str) -> bool:
     """Whether an ASC line is a CAN frame (not a header, comment, trigger or bus event)."""
-    return (
-        bool(_ASC_DIRECTION.search(line) or _ASC_DATA.search(line))
-        or not _ASC_NOT_FRAMES.match(line)
-    )
+    if _ASC_DIRECTION.search(line) or _ASC_DATA.search(line):
+        return True
+    return not _ASC_NOT_FRAMES.match(line)
 
 
 def trc_frame_line(reader: Any, line: str) -> bool:

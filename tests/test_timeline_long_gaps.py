@@ -174,3 +174,16 @@ def test_replay_of_a_candump_log_with_a_link_down_up(tmp_path: Path, capsys):
     assert len(rows) == 1 + 671
     assert rows[-1].split(",")[0] == "9.99"
     assert "late" not in capsys.readouterr().err
+
+
+def test_a_wrap_guess_is_a_counted_notice():
+    from bench.pipeline.stats import Stats
+    from bench.records.events import describe, make_events, severity
+
+    ev = make_events(EventKind.WRAP_GUESS, np.array([1.0, 2.0]), 2, np.array([10, 20]), 1)
+    stats = Stats()
+    stats.count_events(ev)
+    stats.count_events(ev[:1])  # a live step's few take the scalar path
+    assert stats.wrap_guesses == 3 and stats.as_dict()["wrap_guesses"] == 3
+    assert severity(EventKind.WRAP_GUESS) == "info"
+    assert describe(ev[0]).startswith("WRAP_GUESS ch2 sample 10 1 timestamp wraps")

@@ -122,7 +122,8 @@ def gap_wraps(elapsed: float, d: int, dc: int, period: float) -> tuple[int, bool
     if near > 0 and abs(miss) <= BRIDGE_TOL_TICKS + BRIDGE_PPM * abs(elapsed):
         return near, False
     other = near + (1 if miss > 0 else -1)
-    if max(near, other) <= 0 or not 0 < period * COUNTER_SPAN > abs(elapsed):
+    counts = period > 0 and abs(elapsed) < period * COUNTER_SPAN  # False for a NaN period
+    if max(near, other) <= 0 or not counts:
         return 0, False
     fits = {k for k in (near, other, 0) if k >= 0 and counter_fits(d + k * TS_WRAP, dc, period)}
     if len(fits) == 1:
