@@ -38,7 +38,7 @@ _ASC_NOT_FRAMES = re.compile(
       | \d+ \. \d+ \s+ (
             start \s+ of \s+ measurement .*
           | \d+ \s+ statistic: .*                        # bus statistics event
-          | (?! \d+ (\s|$) | canfd (\s|$)) \S+ (\s .*)?  # an event on no CAN channel
+          | (?! canfd (\s|$)) [a-z] [\w:.-]+ (\s .*)?     # an event on no CAN channel (a name)
         )
     ) $"""
 )

@@ -187,3 +187,12 @@ def test_asc_frame_with_garbled_channel_and_direction_is_counted(tmp_path: Path)
     lines[rows[0]] = lines[rows[0]].replace(" 1  ", " z  ", 1).replace(" Rx ", "zRx ", 1)
     got, notices = read(save(tmp_path, "garbled.asc", lines))
     assert len(got) == N - 1 and len(notices) == 1
+
+
+@pytest.mark.parametrize("channel", ["z", "1z", "#"])
+def test_asc_frame_cut_after_a_garbled_channel_is_counted(tmp_path: Path, channel: str) -> None:
+    """' 0.000000 z  101     ': one letter is no event's name, so it was a frame line."""
+    lines, rows = written(tmp_path, ".asc")
+    lines[rows[0]] = lines[rows[0]][:21].replace(" 1  ", f" {channel}  ", 1)
+    got, notices = read(save(tmp_path, "cut.asc", lines))
+    assert len(got) == N - 1 and len(notices) == 1
