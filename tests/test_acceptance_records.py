@@ -13,9 +13,10 @@ from pathlib import Path
 import pytest
 
 from bench.cli import main
-from tests.test_acceptance_run import validate_junit
+from tests.acceptance_support import LEVEL_GRADE, accept, validate_junit
 
-PLAN = """
+PLAN = (
+    """
 [plan]
 title = "level, traced to requirements"
 expect = "pass"
@@ -26,16 +27,9 @@ seed = 5
 duration_s = 3.0
 sample_rate_hz = 200
 initial_speed_mps = 10.0
-[[scenario.track]]
-length_m = 1000.0
-gradient_permil = 20.0
-[[scenario.channels]]
-noise_mps2 = 2e-5
-[[scenario.channels]]
-noise_mps2 = 2e-5
-[[scenario.channels]]
-noise_mps2 = 2e-5
-
+"""
+    + LEVEL_GRADE
+    + """
 [[checks]]
 name = "estimator on the grade"
 kind = "gradient_error"
@@ -51,14 +45,11 @@ requirement = ["REQ-LNK-001", "REQ-LNK-002"]
 name = "untraced"
 kind = "no_frame_loss"
 """
+)
 
 
-def run(tmp_path: Path, text: str, *extra: str) -> tuple[int, Path, str]:
-    plan = tmp_path / "traced.toml"
-    plan.write_text(text)
-    out = tmp_path / "out"
-    code = main(["accept", str(plan), "--out", str(out), "--no-plots", *extra])
-    return code, out, ""
+def run(tmp_path: Path, text: str, *extra: str) -> tuple[int, Path]:
+    return accept(tmp_path, "traced", text, *extra)
 
 
 def props(element: ET.Element | None) -> list[tuple[str, str]]:
@@ -69,7 +60,7 @@ def props(element: ET.Element | None) -> list[tuple[str, str]]:
 def test_record_junit_and_report_carry_dut_station_operator_board_and_requirements(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    code, out, _ = run(tmp_path, PLAN, "--operator", "A. Tester", "--station", "bench-3")
+    code, out = run(tmp_path, PLAN, "--operator", "A. Tester", "--station", "bench-3")
     assert code == 0
     record = json.loads((out / "record.json").read_text())
     assert record["dut"]["serial"] == "SN-0042" and record["dut"]["firmware"] == "1.2.3"
@@ -105,16 +96,14 @@ def test_record_junit_and_report_carry_dut_station_operator_board_and_requiremen
 
 
 def test_command_line_names_the_unit_over_the_plan(tmp_path: Path) -> None:
-    code, out, _ = run(tmp_path, PLAN, "--dut-serial", "SN-0099", "--dut-firmware", "2.0.0")
+    code, out = run(tmp_path, PLAN, "--dut-serial", "SN-0099", "--dut-firmware", "2.0.0")
     assert code == 0
     record = json.loads((out / "record.json").read_text())
     assert (record["dut"]["serial"], record["dut"]["firmware"]) == ("SN-0099", "2.0.0")
 
 
 def test_no_dut_given_says_so(tmp_path: Path) -> None:
-    code, out, _ = run(
-        tmp_path, PLAN.replace('dut = { serial = "SN-0042", firmware = "1.2.3" }', "")
-    )
+    code, out = run(tmp_path, PLAN.replace('dut = { serial = "SN-0042", firmware = "1.2.3" }', ""))
     assert code == 0
     record = json.loads((out / "record.json").read_text())
     assert record["dut"]["serial"] is None
@@ -147,7 +136,7 @@ def test_a_check_that_does_not_fail_as_designed_is_a_failure(
     # held to the magnitude instead of the sign, the device now passes the check meant to fail
     loosened = text.replace('truth = "signed"\nfrom_s = 1.0', 'truth = "magnitude"\nfrom_s = 1.0')
     assert loosened != text
-    code, out, _ = run(tmp_path, loosened)
+    code, out = run(tmp_path, loosened)
     assert code == 1
     printed = " ".join(capsys.readouterr().out.split())
     assert "did not fail as expected" in printed

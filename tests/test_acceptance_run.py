@@ -7,7 +7,6 @@ import argparse
 import hashlib
 import json
 import re
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -17,52 +16,7 @@ from bench.acceptance.answers import Answer
 from bench.acceptance.plan import load_plan, parse_plan
 from bench.acceptance.runner import Options, run_plan
 from bench.cli import main
-
-# --------------------------------------------------------------------------- JUnit schema
-
-_SUITE_CHILDREN = {"properties", "testcase", "system-out", "system-err"}
-_CASE_CHILDREN = {"properties", "skipped", "error", "failure", "system-out", "system-err"}
-
-
-def _number(value: str | None, kind: type) -> None:
-    assert value is not None
-    kind(value)  # raises on a malformed count or time
-
-
-def validate_junit(path: Path) -> ET.Element:
-    """The JUnit XML schema CI servers read (Jenkins junit-10.xsd, as GitLab and GitHub
-    accept it), checked rule by rule: elements, required attributes, types, counts."""
-    root = ET.parse(path).getroot()
-    assert root.tag == "testsuites"
-    suites = list(root)
-    assert suites and all(s.tag == "testsuite" for s in suites)
-    for suite in suites:
-        assert suite.get("name")
-        for attr in ("tests", "failures", "errors", "skipped"):
-            _number(suite.get(attr), int)
-        _number(suite.get("time"), float)
-        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d", suite.get("timestamp", ""))
-        tags = [c.tag for c in suite]
-        assert set(tags) <= _SUITE_CHILDREN
-        assert tags.count("properties") <= 1 and tags[0] == "properties"
-        for prop in suite.iter("property"):
-            assert prop.get("name") is not None and prop.get("value") is not None
-        cases = suite.findall("testcase")
-        counted = {"failure": 0, "error": 0, "skipped": 0}
-        for case in cases:
-            assert case.get("name") and case.get("classname")
-            _number(case.get("time"), float)
-            kids = [c.tag for c in case]
-            assert set(kids) <= _CASE_CHILDREN
-            assert "properties" not in kids[1:]  # at most one, first (pytest, Xray, Testmo)
-            assert sum(k in ("failure", "error", "skipped") for k in kids) <= 1
-            for k in counted:
-                counted[k] += kids.count(k)
-        assert int(suite.get("tests", "-1")) == len(cases)
-        assert int(suite.get("failures", "-1")) == counted["failure"]
-        assert int(suite.get("errors", "-1")) == counted["error"]
-        assert int(suite.get("skipped", "-1")) == counted["skipped"]
-    return root
+from tests.acceptance_support import LEVEL_GRADE, accept, validate_junit
 
 
 def png_is_a_plot(path: Path) -> None:
@@ -132,7 +86,8 @@ def test_bench_failure_is_verdict_error_with_a_record(
 
 # --------------------------------------------------------------------------- the CLI
 
-IMPOSSIBLE = """
+IMPOSSIBLE = (
+    """
 [plan]
 title = "an impossible limit"
 expect = "pass"
@@ -140,16 +95,9 @@ expect = "pass"
 [scenario]
 duration_s = 3.0
 initial_speed_mps = 10.0
-[[scenario.track]]
-length_m = 1000.0
-gradient_permil = 20.0
-[[scenario.channels]]
-noise_mps2 = 2e-5
-[[scenario.channels]]
-noise_mps2 = 2e-5
-[[scenario.channels]]
-noise_mps2 = 2e-5
-
+"""
+    + LEVEL_GRADE
+    + """
 [[checks]]
 name = "steady gradient"
 kind = "gradient_error"
@@ -158,6 +106,7 @@ max_permil = 0.00001
 [[checks]]
 kind = "no_frame_loss"
 """
+)
 
 
 def test_cli_list(capsys: pytest.CaptureFixture[str]) -> None:
@@ -170,14 +119,12 @@ def test_cli_list(capsys: pytest.CaptureFixture[str]) -> None:
 def test_cli_impossible_limit_fails_and_says_by_how_much(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    plan = tmp_path / "impossible.toml"
-    plan.write_text(IMPOSSIBLE)
-    code = main(["accept", str(plan), "--out", str(tmp_path / "out"), "--no-plots"])
+    code, out_dir = accept(tmp_path, "impossible", IMPOSSIBLE)
     assert code == 1
     out = " ".join(capsys.readouterr().out.split())
     assert re.search(r"FAIL steady gradient: [\d.e-]+ permil > limit 1e-05 permil \(by [\d.]+", out)
     assert "FAIL plan impossible" in out
-    root = validate_junit(tmp_path / "out" / "junit.xml")
+    root = validate_junit(out_dir / "junit.xml")
     failure = root.find(".//testcase[@name='steady gradient']/failure")
     assert failure is not None and "by" in (failure.get("message") or "")
 

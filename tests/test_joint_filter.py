@@ -11,7 +11,7 @@ import pytest
 
 from bench.config import Config, EstimatorSettings, config_from_dict
 from bench.errors import ConfigError
-from bench.fusion import joint_kernel as jk
+from bench.fusion import joint_layout as jl
 from bench.fusion.estimator import Estimator
 from bench.fusion.joint import JointFilter, u_variance_factors
 from bench.fusion.least_squares import geometry
@@ -162,7 +162,7 @@ def test_the_grade_rate_stays_within_the_sharpest_curve_the_line_has() -> None:
     anchors = np.arange(0, n, 4)
     frames = (anchors, b[anchors], np.full(len(anchors), 20.0), anchors == 0, anchors < 0)
     f.push(b, np.zeros(n), w, np.full(n, 7), np.zeros(n), np.zeros(n, np.int8), frames)
-    assert abs(f.x[jk.IK]) <= G0 / 500.0 + 1e-12
+    assert abs(f.x[jl.IK]) <= G0 / 500.0 + 1e-12
     assert cfg.estimator.vertical_radius_min_m == 500.0
 
 
@@ -215,8 +215,8 @@ def test_one_kernel_call_equals_many_one_sample_calls() -> None:
 
 
 def test_state_layout_sizes() -> None:
-    x, cov, m = jk.new_state(np.zeros(jk.P_SIZE))
-    assert x.shape == (jk.NX,) and cov.shape == (jk.NX, jk.NX) and m.shape == (jk.M_SIZE,)
+    x, cov, m = jl.new_state(np.zeros(jl.P_SIZE))
+    assert x.shape == (jl.NX,) and cov.shape == (jl.NX, jl.NX) and m.shape == (jl.M_SIZE,)
 
 
 @pytest.mark.parametrize("value", [0.0, -1.0, 101.0, float("nan")])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import math
 import signal
@@ -81,53 +82,31 @@ def run(args: argparse.Namespace) -> int:
     # before the summary, the CSV's last rows and the MCAP's summary section
     ends = [signal.SIGTERM, signal.SIGINT, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
     old_handlers = {sig: signal.signal(sig, on_signal) for sig in ends}
-    try:
+    with contextlib.ExitStack() as opening:  # unwound only when opening fails part way
+        opening.callback(_restore_handlers, old_handlers, ignore=False)
         if args.csv:
             check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
         config = live_config(args.config, getattr(args, "emulate", None))
         setup = open_live(args)
-    except BaseException:
-        for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
-        raise
-    sinks = []
-    try:
+        opening.callback(setup.close)
+        sinks: list[Any] = []
+        opening.callback(_close_sinks, sinks)
         recording = open_recording(
             args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
         )
-    except BaseException:
-        setup.close()
-        for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
-        raise
-    if not args.quiet:
-        announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
-    if recording is not None:
-        sinks.append(recording)
-        print(f"bench: logging to {recording.path}", file=sys.stderr)
-    if args.csv:
-        from bench.sinks.tables import csv_sink
+        if not args.quiet:
+            announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
+        if recording is not None:
+            sinks.append(recording)
+            print(f"bench: logging to {recording.path}", file=sys.stderr)
+        if args.csv:
+            from bench.sinks.tables import csv_sink
 
-        try:
             sinks.append(csv_sink(args.csv, live=True))
-        except BaseException:
-            for sink in sinks:
-                sink.close()
-            setup.close()
-            for sig, handler in old_handlers.items():
-                signal.signal(sig, handler)
-            raise
-    try:
         stream = open_stream(args, config, lambda m: print(f"bench: {m}", file=sys.stderr))
-    except BaseException:
-        for sink in sinks:
-            sink.close()
-        setup.close()
-        for sig, handler in old_handlers.items():
-            signal.signal(sig, handler)
-        raise
-    if stream is not None:
-        sinks.append(stream)  # fed like the log: the processing thread only enqueues
+        if stream is not None:
+            sinks.append(stream)  # fed like the log: the processing thread only enqueues
+        opening.pop_all()  # all open: from here the run's own shutdown closes them
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()
@@ -158,10 +137,20 @@ def run(args: argparse.Namespace) -> int:
     try:
         return _report(args, runner, setup, recording, start, tty)
     finally:
-        for sig, handler in old_handlers.items():
-            # after a signal the process is on its way out: stay deaf to repeats, also through
-            # interpreter teardown (which resets Python-level handlers, but not SIG_IGN)
-            signal.signal(sig, signal.SIG_IGN if signalled else handler)
+        # after a signal the process is on its way out: stay deaf to repeats, also through
+        # interpreter teardown (which resets Python-level handlers, but not SIG_IGN)
+        _restore_handlers(old_handlers, ignore=bool(signalled))
+
+
+def _restore_handlers(old: dict[int, Any], *, ignore: bool) -> None:
+    """Put back the signal handlers the run replaced (``ignore``: SIG_IGN instead)."""
+    for sig, handler in old.items():
+        signal.signal(sig, signal.SIG_IGN if ignore else handler)
+
+
+def _close_sinks(sinks: list[Any]) -> None:
+    for sink in sinks:
+        sink.close()
 
 
 def _report(

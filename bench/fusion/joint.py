@@ -15,6 +15,7 @@ import numpy as np
 
 from bench.config import Config
 from bench.fusion import joint_kernel as jk
+from bench.fusion import joint_layout as jl
 from bench.fusion.least_squares import Geometry
 
 _EMPTY_F = np.zeros(0)
@@ -26,56 +27,56 @@ _EMPTY_I8 = np.zeros(0, dtype=np.int8)
 def parameters(config: Config) -> np.ndarray:
     """The kernel's parameter vector from a config."""
     s = config.estimator
-    p = np.zeros(jk.P_SIZE)
-    p[jk.P_QA] = s.accel_psd
-    p[jk.P_QS] = s.grade_psd_per_m
-    p[jk.P_QK] = s.grade_rate_psd_per_m
-    p[jk.P_QK_QUIET] = s.grade_rate_psd_smooth_per_m
-    p[jk.P_QL] = s.latency_psd
-    p[jk.P_RV] = s.odometer_noise_floor_mps**2 + s.speed_quantum_mps**2 / 12.0
-    p[jk.P_RV0] = s.speed_noise_mps**2 + s.speed_quantum_mps**2 / 12.0
-    p[jk.P_GATE] = s.odometer_gate_sigma**2
-    p[jk.P_RECOVER] = s.suspect_recover_s
-    p[jk.P_RESET] = s.odometer_reset_s
-    p[jk.P_SLIP] = s.slip_accel_mps2
-    p[jk.P_COAST] = s.coast_s
-    p[jk.P_RZ] = s.zupt_accel_sigma_mps2**2
-    p[jk.P_ZGATE] = s.zupt_gate_mps2
-    p[jk.P_ZHOLD] = s.standstill_s
-    p[jk.P_NOISE_FLOOR] = s.channel_noise_floor_mps2**2
-    p[jk.P_NOISE_TAU] = s.channel_noise_tau_s
-    p[jk.P_G] = config.g
-    p[jk.P_LIMIT] = config.gradient_sigma_limit_permil
-    p[jk.P_S0] = s.grade_sigma0_mps2
-    p[jk.P_K0] = s.grade_rate_sigma0
-    p[jk.P_A0] = 1.0
-    p[jk.P_L0] = s.odometer_latency_s
-    p[jk.P_LSIG] = s.latency_sigma_s
-    p[jk.P_RV_MAX] = s.speed_noise_max_mps**2
-    p[jk.P_RV_TAU] = 200.0
-    p[jk.P_RESLOW_TAU] = 1.0
-    p[jk.P_RES_LIMIT] = s.residual_limit_mps2
-    p[jk.P_LAT_ACC] = s.latency_min_accel_mps2
-    p[jk.P_KJUMP] = s.grade_rate_jump
-    p[jk.P_UGATE] = 25.0
-    p[jk.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
-    p[jk.P_LEARN] = 100.0
-    p[jk.P_WBLOCK] = s.w_block_s
-    p[jk.P_QB] = s.w_bias_psd
-    p[jk.P_B0] = s.w_bias_sigma0_mps2
-    p[jk.P_WGATE] = 25.0
-    p[jk.P_WVAR_TAU] = 20.0
-    p[jk.P_USE_W] = 1.0 if s.w_block_s > 0.0 else 0.0
-    p[jk.P_KMAX] = config.g / s.vertical_radius_min_m
-    p[jk.P_WDET_TAU] = s.curve_detect_s
-    p[jk.P_WDET_SIGMA] = s.curve_detect_sigma
-    p[jk.P_WDET_MIN] = s.curve_detect_min_mps2
-    p[jk.P_WDET_VAR_TAU] = 5.0
-    p[jk.P_WCORR] = s.vibration_corr_s
-    p[jk.P_UFAST_TAU] = 0.05
-    p[jk.P_USTILL_TAU] = 2.0
-    p[jk.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
-    p[jk.P_BIAS] = s.bias_sigma_mps2
+    p = np.zeros(jl.P_SIZE)
+    p[jl.P_QA] = s.accel_psd
+    p[jl.P_QS] = s.grade_psd_per_m
+    p[jl.P_QK] = s.grade_rate_psd_per_m
+    p[jl.P_QK_QUIET] = s.grade_rate_psd_smooth_per_m
+    p[jl.P_QL] = s.latency_psd
+    p[jl.P_RV] = s.odometer_noise_floor_mps**2 + s.speed_quantum_mps**2 / 12.0
+    p[jl.P_RV0] = s.speed_noise_mps**2 + s.speed_quantum_mps**2 / 12.0
+    p[jl.P_GATE] = s.odometer_gate_sigma**2
+    p[jl.P_RECOVER] = s.suspect_recover_s
+    p[jl.P_RESET] = s.odometer_reset_s
+    p[jl.P_SLIP] = s.slip_accel_mps2
+    p[jl.P_COAST] = s.coast_s
+    p[jl.P_RZ] = s.zupt_accel_sigma_mps2**2
+    p[jl.P_ZGATE] = s.zupt_gate_mps2
+    p[jl.P_ZHOLD] = s.standstill_s
+    p[jl.P_NOISE_FLOOR] = s.channel_noise_floor_mps2**2
+    p[jl.P_NOISE_TAU] = s.channel_noise_tau_s
+    p[jl.P_G] = config.g
+    p[jl.P_LIMIT] = config.gradient_sigma_limit_permil
+    p[jl.P_S0] = s.grade_sigma0_mps2
+    p[jl.P_K0] = s.grade_rate_sigma0
+    p[jl.P_A0] = 1.0
+    p[jl.P_L0] = s.odometer_latency_s
+    p[jl.P_LSIG] = s.latency_sigma_s
+    p[jl.P_RV_MAX] = s.speed_noise_max_mps**2
+    p[jl.P_RV_TAU] = 200.0
+    p[jl.P_RESLOW_TAU] = 1.0
+    p[jl.P_RES_LIMIT] = s.residual_limit_mps2
+    p[jl.P_LAT_ACC] = s.latency_min_accel_mps2
+    p[jl.P_KJUMP] = s.grade_rate_jump
+    p[jl.P_UGATE] = 25.0
+    p[jl.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
+    p[jl.P_LEARN] = 100.0
+    p[jl.P_WBLOCK] = s.w_block_s
+    p[jl.P_QB] = s.w_bias_psd
+    p[jl.P_B0] = s.w_bias_sigma0_mps2
+    p[jl.P_WGATE] = 25.0
+    p[jl.P_WVAR_TAU] = 20.0
+    p[jl.P_USE_W] = 1.0 if s.w_block_s > 0.0 else 0.0
+    p[jl.P_KMAX] = config.g / s.vertical_radius_min_m
+    p[jl.P_WDET_TAU] = s.curve_detect_s
+    p[jl.P_WDET_SIGMA] = s.curve_detect_sigma
+    p[jl.P_WDET_MIN] = s.curve_detect_min_mps2
+    p[jl.P_WDET_VAR_TAU] = 5.0
+    p[jl.P_WCORR] = s.vibration_corr_s
+    p[jl.P_UFAST_TAU] = 0.05
+    p[jl.P_USTILL_TAU] = 2.0
+    p[jl.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
+    p[jl.P_BIAS] = s.bias_sigma_mps2
     return p
 
 
@@ -113,7 +114,7 @@ class JointFilter:
 
     def __init__(self, config: Config, geo: Geometry) -> None:
         self.p = parameters(config)
-        self.x, self.cov, self.m = jk.new_state(self.p)
+        self.x, self.cov, self.m = jl.new_state(self.p)
         self.ru = u_variance_factors(geo)
         self.rw = u_variance_factors(geo, 1)
         self.excl_gain = exclusion_gains(geo)

@@ -6,16 +6,7 @@ carried between calls in small float64 arrays, so the results are the same bits 
 stream is cut: a Kalman filter is a recursion, and a recursion run by one machine code in
 one order does not depend on where the calls start and stop. No fastmath: IEEE semantics.
 
-State x (see docs/ESTIMATOR.md):
-
-====  ========================================================================
-v     speed along the track, m/s, signed like SPEED_REF
-a     acceleration dv/dt, m/s^2 (random walk in time)
-s     g sin(alpha): gravity along the track, m/s^2 (random walk in distance)
-k     ds/dx, the gradient's rate per metre (vertical curves; random walk in distance)
-l     odometer latency beyond the clock alignment, s (constant unless enabled)
-b     bias of w, the specific force normal to the track, m/s^2 (slow random walk)
-====  ========================================================================
+State x: the slots of :mod:`bench.fusion.joint_layout` (v, a, s, k, l, b; docs/ESTIMATOR.md).
 
 Process over dt with d = |v| dt: v += a dt (+ white-jerk terms), s += k v dt; s and k
 take process noise only per metre travelled, so a train at rest keeps its gradient.
@@ -34,121 +25,92 @@ import math
 import numpy as np
 from numba import njit
 
+from bench.fusion.joint_layout import (
+    IA,
+    IB,
+    IK,
+    IL,
+    IS,
+    IV,
+    M_HAVE_V,
+    M_HAVE_Z,
+    M_LAST_B,
+    M_LAST_FRAME,
+    M_LAST_SEEN,
+    M_LAST_Z,
+    M_NOISE2,
+    M_NOISE_N,
+    M_OK_SINCE,
+    M_QUANT,
+    M_RESLOW,
+    M_ROUGH,
+    M_RV,
+    M_STARTED,
+    M_STEP_A0,
+    M_STEP_T,
+    M_STILL,
+    M_STREAK_NU0,
+    M_STREAK_T0,
+    M_SUSPECT,
+    M_UFAST,
+    M_USTILL,
+    M_USTILL_N,
+    M_WCOUNT,
+    M_WE,
+    M_WEVAR,
+    M_WFLOOR,
+    M_WHOLD,
+    M_WSUM,
+    M_WT0,
+    M_WVAR,
+    M_ZUPT_FROM,
+    NX,
+    P_BIAS,
+    P_COAST,
+    P_G,
+    P_GATE,
+    P_K0,
+    P_KJUMP,
+    P_KMAX,
+    P_LAT_ACC,
+    P_LIMIT,
+    P_LSIG,
+    P_NOISE_FLOOR,
+    P_NOISE_TAU,
+    P_QA,
+    P_QB,
+    P_QK,
+    P_QK_BLIND,
+    P_QK_QUIET,
+    P_QL,
+    P_QS,
+    P_RECOVER,
+    P_RES_LIMIT,
+    P_RESET,
+    P_RESLOW_TAU,
+    P_RV,
+    P_RV_MAX,
+    P_RV_TAU,
+    P_RZ,
+    P_SLIP,
+    P_UFAST_TAU,
+    P_UGATE,
+    P_USE_W,
+    P_USTILL_TAU,
+    P_WBLOCK,
+    P_WCORR,
+    P_WDET_MIN,
+    P_WDET_SIGMA,
+    P_WDET_TAU,
+    P_WDET_VAR_TAU,
+    P_WGATE,
+    P_WRES_MAX,
+    P_WVAR_TAU,
+    P_ZGATE,
+    P_ZHOLD,
+)
+
 W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
-NX = 6
-IV, IA, IS, IK, IL, IB = 0, 1, 2, 3, 4, 5
-
-# -- misc state slots (float64 array ``m``) ------------------------------------------------
-M_STARTED = 0  # 1 after the first sample
-M_LAST_B = 1  # board time of the previous sample, s
-M_NOISE2 = 2  # channel noise variance estimate, (m/s^2)^2
-M_NOISE_N = 3  # residuals averaged so far (for the first-second mean)
-M_LAST_FRAME = 4  # board time of the newest SPEED_REF frame, s (-inf: none yet)
-M_STILL = 5  # the newest frame said standstill
-M_SUSPECT = 6  # odometer suspect
-M_STREAK_T0 = 7  # board time of the first rejected frame of the current streak (NaN: none)
-M_STREAK_NU0 = 8  # its innovation
-M_OK_SINCE = 9  # board time of the first accepted frame since the last rejection (NaN)
-M_ZUPT_FROM = 10  # zero-velocity updates blocked before this board time
-M_HAVE_V = 11  # the speed has been initialised from an odometer frame
-M_RV = 12  # innovation-based odometer noise variance estimate
-M_LAST_SEEN = 13  # board time of the newest frame measured (applied or rejected)
-M_RESLOW = 14  # slow mean of the parity residual, m/s^2
-M_QUANT = 15  # least non-zero step between odometer readings, m/s (inf: none yet)
-M_LAST_Z = 16  # the previous reading, m/s
-M_HAVE_Z = 17  # 1 once there is a previous reading
-M_WSUM = 18  # sum of w over the current block
-M_WCOUNT = 19  # samples in it
-M_WT0 = 20  # board time of its first sample
-M_WVAR = 21  # learnt variance of a block mean's innovation (vibration), (m/s^2)^2
-M_WFLOOR = 22  # sum of the white-noise variance factors of the block's samples
-M_WE = 23  # moving mean of the block innovations (the curve detector)
-M_WEVAR = 24  # its learnt variance while no curve shows
-M_WHOLD = 25  # board time before which the detector does not fire again
-M_UFAST = 26  # fast moving mean of u (motion at standstill)
-M_USTILL = 27  # mean of u over the quiet part of the current standstill
-M_USTILL_N = 28  # samples in it (0: no standstill going on)
-M_STEP_T = 29  # board time of the latest acceleration step (u gate)
-M_STEP_A0 = 30  # the acceleration before it
-M_ROUGH = 31  # 0..1, how much vibration drowns w (see _predict)
-M_SIZE = 32
-
-# -- parameters (float64 array ``p``) ------------------------------------------------------
-P_QA = 0  # acceleration random walk, (m/s^2)^2/s
-P_QS = 1  # gradient (s) random walk per metre, (m/s^2)^2/m
-P_QK = 2  # grade-rate random walk per metre, ((m/s^2)/m)^2/m
-P_QL = 3  # latency random walk, s^2/s
-P_RV = 4  # least odometer noise variance (floor^2 + quantum^2/12), (m/s)^2
-P_GATE = 5  # innovation gate, nu^2/S beyond this is rejected
-P_RECOVER = 6  # s of accepted frames before "suspect" clears
-P_RESET = 7  # s of rejected frames before the speed restarts at the odometer
-P_SLIP = 8  # innovation slope (m/s^2) beyond which a rejected streak is slip/slide
-P_COAST = 9  # s without SPEED_REF before "coasting"
-P_RZ = 10  # zero-velocity update: acceleration variance, (m/s^2)^2
-P_ZGATE = 11  # |u - s| beyond this (m/s^2) blocks the zero-velocity update
-P_ZHOLD = 12  # s the zero-velocity update stays blocked after that
-P_NOISE_FLOOR = 13  # channel noise variance floor, (m/s^2)^2
-P_NOISE_TAU = 14  # s, time constant of the channel noise estimate
-P_G = 15  # gravity, m/s^2
-P_LIMIT = 16  # gradient withheld when its 1-sigma exceeds this, permil
-P_S0 = 17  # initial 1-sigma of s, m/s^2
-P_K0 = 18  # initial 1-sigma of k, (m/s^2)/m
-P_A0 = 19  # initial 1-sigma of a, m/s^2
-P_L0 = 20  # initial latency, s
-P_LSIG = 21  # initial 1-sigma of the latency, s (0: not estimated)
-P_RV_MAX = 22  # cap of the innovation-based odometer noise variance
-P_RV_TAU = 23  # frames, time constant of that estimate
-P_RV0 = 24  # odometer noise variance assumed at the start, (m/s)^2
-P_RESLOW_TAU = 25  # s, time constant of the residual's slow mean
-P_KJUMP = 26  # 1-sigma added to k when a clean odometer drift shows a curve missed, (m/s^2)/m
-P_UGATE = 27  # u innovation beyond this (nu^2/S): the acceleration stepped
-P_QK_BLIND = 28  # k's random walk per metre while no odometer frame is accepted
-P_LEARN = 29  # innovations (nu^2/S) up to this feed the odometer noise estimate
-P_RES_LIMIT = 30  # residual limit, m/s^2 (clip of the residual's statistics)
-P_LAT_ACC = 31  # m/s^2: the latency is estimated only while |a| exceeds this
-P_WBLOCK = 32  # s, w is averaged over blocks this long
-P_QB = 33  # w bias random walk, (m/s^2)^2/s
-P_B0 = 34  # initial 1-sigma of the w bias, m/s^2
-P_WGATE = 35  # block innovation beyond this (nu^2/S) is not applied
-P_WVAR_TAU = 36  # blocks, time constant of the learnt block variance
-P_USE_W = 37  # 1: apply the w blocks (0: the filter ignores w)
-P_KMAX = 38  # largest |k| a line has (its sharpest vertical curve), (m/s^2)/m
-P_WDET_TAU = 39  # s, time constant of the curve detector's moving mean
-P_WDET_SIGMA = 40  # it fires beyond this many of its sigmas
-P_WDET_MIN = 41  # and beyond this many m/s^2
-P_WDET_VAR_TAU = 42  # s, time constant of its learnt variance
-P_WCORR = 43  # s, correlation time of the body's vertical vibration (inflates R per block)
-P_UFAST_TAU = 44  # s, time constant of u's fast moving mean
-P_USTILL_TAU = 45  # s, longest memory of the standstill's mean of u
-P_WRES_MAX = 46  # m/s^2: w is not used while |the residual's slow mean| exceeds this
-P_BIAS = 47  # 1-sigma of the sensors' bias after calibration (drift), along the track
-P_QK_QUIET = 48  # k's random walk per metre on a smooth ride, ((m/s^2)/m)^2/m
-P_SIZE = 49
-
-
-def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(x, P, m) before the first sample."""
-    x = np.zeros(NX)
-    x[IL] = p[P_L0]
-    cov = np.zeros((NX, NX))
-    cov[IV, IV] = 100.0  # speed unknown until an odometer frame or a standstill says it
-    cov[IA, IA] = p[P_A0] ** 2
-    cov[IS, IS] = p[P_S0] ** 2
-    cov[IK, IK] = p[P_K0] ** 2
-    cov[IL, IL] = p[P_LSIG] ** 2
-    cov[IB, IB] = p[P_B0] ** 2
-    m = np.zeros(M_SIZE)
-    m[M_LAST_FRAME] = -math.inf
-    m[M_LAST_SEEN] = -math.inf
-    m[M_STREAK_T0] = math.nan
-    m[M_OK_SINCE] = math.nan
-    m[M_ZUPT_FROM] = -math.inf
-    m[M_RV] = p[P_RV0]
-    m[M_QUANT] = math.inf
-    m[M_WT0] = math.nan
-    m[M_WVAR] = 0.0
-    m[M_STEP_T] = -math.inf
-    return x, cov, m
 
 
 @njit(cache=True)

@@ -17,8 +17,6 @@ computes the very same numbers again.
 
 from __future__ import annotations
 
-import math
-
 ACCEL0_MPS2 = 1.0
 """Initial acceleration uncertainty (1 sigma): about the largest a train pulls or brakes at."""
 MANEUVER_SIGMA = 4.0
@@ -39,10 +37,6 @@ class SpeedKalman:
         self._fixed_dt: float | None = None  # dt for which cov is a fixed point...
         self._gain = (0.0, 0.0, 1.0)  # ...and the gain (kv, ka) and innovation variance
         self._streak = (0, False)  # innovations outside the gate in a row, and their sign
-
-    @property
-    def accel_sigma(self) -> float:
-        return math.sqrt(self.cov[2])
 
     def run(
         self, dt: list[float], z: list[float], restart: list[bool]

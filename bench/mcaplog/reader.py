@@ -34,13 +34,21 @@ from bench.mcaplog.decoders import (
     link_error_from_json,
     notice_from_json,
 )
+from bench.mcaplog.recovery import (
+    SummaryAhead,
+    definitions_from_chunks,
+    frames_lost_to_damage,
+    loose_chunk,
+    peek_summary,
+    resync,
+    truncation_loss,
+)
 from bench.mcaplog.structure import (
     FOOTER_LEN,
     MAGIC,
     OP_ATTACHMENT,
     OP_CHANNEL,
     OP_CHUNK,
-    OP_CHUNK_INDEX,
     OP_DATA_END,
     OP_FOOTER,
     OP_HEADER,
@@ -49,7 +57,6 @@ from bench.mcaplog.structure import (
     OP_METADATA,
     OP_NAMES,
     OP_SCHEMA,
-    OP_STATISTICS,
     AttachmentInfo,
     ChannelInfo,
     ChunkContent,
@@ -57,11 +64,13 @@ from bench.mcaplog.structure import (
     McapReadError,
     SchemaInfo,
     gather,
+    parse_attachment,
+    parse_channel,
+    parse_chunk,
+    parse_schema,
     read_map,
-    read_statistics,
     read_str,
     walk_chunk,
-    walk_records,
 )
 from devices.base import SourceBatch, SourceNotice
 from protocol.frames import empty_frames
@@ -106,18 +115,15 @@ class McapLog:
         self.scan_end = 0  # end of the last complete record of the data section
         self.warnings: list[str] = []
         self.bad_chunks: list[tuple[ChunkInfo, str]] = []
-        self.damage: list[str] = []  # what the scan stepped over (see _resync)
+        self.damage: list[str] = []  # what the scan stepped over (see recovery.resync)
         self.lost_frames = 0  # frames in the damage, from the summary's statistics
-        self._index_len: dict[int, int] = {}  # chunk offset -> record length, from the summary
-        self._sum_schemas: dict[int, SchemaInfo] = {}
-        self._sum_channels: dict[int, ChannelInfo] = {}
-        self._summary_problem = ""
+        self._summary = SummaryAhead()
         self._zstd: Any = None
         try:
             self._scan()
             if self.data_end is not None:
                 self._read_footer()
-            elif self._sum_channels or self.chunks:
+            elif self._summary.channels or self.chunks:
                 self._definitions_from_chunks()
         except BaseException:
             self.close()
@@ -187,7 +193,9 @@ class McapLog:
                 self.warnings.append(self.truncation)
                 return
             raise McapReadError(f"{self.path}: not an MCAP file (bad magic)")
-        self._peek_summary()
+        self._summary = peek_summary(mm, size, self.path)
+        self.statistics = self._summary.statistics
+        self.warnings += self._summary.warnings
         pos = len(MAGIC)
         u_bq = struct.Struct("<BQ").unpack_from
         last_chunk: ChunkInfo | None = None
@@ -216,7 +224,7 @@ class McapLog:
                     last_chunk.index_complete = True
                     last_chunk = None
                 if op != OP_MESSAGE and loose is not None and op in (OP_CHUNK, OP_DATA_END):
-                    self.chunks.append(self._loose_chunk(*loose))
+                    self.chunks.append(loose_chunk(*loose))
                     loose = None
                 try:
                     last_chunk = self._record(op, pos, end, last_chunk)
@@ -230,58 +238,35 @@ class McapLog:
                         self.scan_end = end
                         return
             if bad:
-                resume = self._resync(pos, bad, repaired)
-                if resume is None:
+                step = resync(mm, self._summary.chunk_lengths, pos, bad, repaired)
+                if step is None:
                     reason = bad
                     break
-                last_chunk = None
-                if resume == pos:  # the index knows this chunk's extent: read it with that
+                resume, last_chunk, note = step
+                self.damage.append(note)
+                if last_chunk is not None:  # the index knows this chunk's extent
                     repaired.add(pos)
-                    info = self._chunk(pos, pos + 9, pos + self._index_len[pos])
-                    self.chunks.append(info)
-                    last_chunk = info
-                    end = info.end
+                    self.chunks.append(last_chunk)
+                    end = last_chunk.end
                 else:
                     end = resume
             pos = end
             self.scan_end = pos
         if loose is not None:
-            self.chunks.append(self._loose_chunk(*loose))
+            self.chunks.append(loose_chunk(*loose))
         # not finished: everything from pos on is lost
         self.lost_bytes = size - self.scan_end
         if cut_op == OP_MESSAGE_INDEX:  # the last chunk is whole: only its index is cut
             est = " (only the last chunk's message index: no messages lost)"
         else:
-            est = self._loss_estimate(self.lost_bytes)
+            fid = self.channel_id(S.FRAME_TOPIC)
+            est = truncation_loss(mm, size, self.scan_end, self.chunks, fid)
         self.truncation = (
             f"{self.path}: unfinished or truncated MCAP file ({reason}); recovered "
             f"{len(self.chunks)} complete chunk(s), lost about {self.lost_bytes} bytes at the "
             f"end{est}"
         )
         self.warnings.append(self.truncation)
-
-    def _loss_estimate(self, lost: int) -> str:
-        """'(~N frames, ~S s)': for a chunk cut short, from its own header (uncompressed
-        size, time span) scaled by the complete chunks' frames per byte; otherwise from the
-        complete chunks' average compressed density."""
-        if lost <= 0 or not self.chunks:
-            return ""
-        fid = self.channel_id(S.FRAME_TOPIC)
-        indexed = [c for c in self.chunks if c.indexed]
-        frames = sum(c.index.get(fid, (0, 0))[1] // 16 for c in indexed) if fid else 0
-        if frames <= 0:
-            return ""
-        head = self.scan_end
-        op = self._mm[head] if head < self.size else 0
-        if op == OP_CHUNK and head + 9 + 24 <= self.size:
-            t0, t1, usize = struct.unpack_from("<QQQ", self._mm, head + 9)
-            per_byte = frames / max(1, sum(c.uncompressed_size for c in indexed))
-            span = f", {(t1 - t0) / 1e9:.1f} s" if t1 >= t0 else ""
-            return f" (the last chunk, cut short: ~{int(usize * per_byte)} frames{span})"
-        comp = sum(c.data_len for c in indexed)
-        span_s = (self.chunks[-1].end_time - self.chunks[0].start_time) / 1e9
-        secs = f", ~{lost * span_s / comp:.1f} s" if span_s > 0 and comp else ""
-        return f" (~{int(lost * frames / max(1, comp))} frames{secs})"
 
     def _record(
         self, op: int, pos: int, end: int, last_chunk: ChunkInfo | None
@@ -293,13 +278,13 @@ class McapLog:
             self.profile, p = read_str(mm, body)
             self.library, _ = read_str(mm, p)
         elif op == OP_SCHEMA:
-            schema = self._schema(mm, body)
+            schema = parse_schema(mm, body)
             self.schemas[schema.id] = schema
         elif op == OP_CHANNEL:
-            channel = self._channel(mm, body)
+            channel = parse_channel(mm, body)
             self.channels[channel.id] = channel
         elif op == OP_CHUNK:
-            info = self._chunk(pos, body, end)
+            info = parse_chunk(mm, pos, body, end)
             self.chunks.append(info)
             return info
         elif op == OP_MESSAGE_INDEX:
@@ -310,137 +295,24 @@ class McapLog:
             name, p = read_str(mm, body)
             self.metadata.append((name, read_map(mm, p)))
         elif op == OP_ATTACHMENT:
-            self.attachments.append(self._attachment(pos, body, end))
+            self.attachments.append(parse_attachment(mm, pos, body, end))
         elif op == OP_DATA_END:
             (self.data_section_crc,) = struct.unpack_from("<I", mm, body)
             self.data_end = pos
         return last_chunk
 
-    def _loose_chunk(self, start: int, end: int) -> ChunkInfo:
-        """Unchunked messages (and any definitions between them) read as one uncompressed
-        chunk: the chunk readers walk it like a chunk without a MessageIndex."""
-        n = end - start
-        return ChunkInfo(start, n, 0, 0, n, 0, "", start, n, loose=True)
-
-    def _resync(self, pos: int, why: str, repaired: set[int]) -> int | None:
-        """Where the walk goes on after an unreadable record at ``pos``: ``pos`` itself when
-        the summary's chunk index has a chunk there (its header is damaged, not its
-        content), else the next indexed chunk; None without a usable chunk index."""
-        if not self._index_len:
-            return None
-        if pos in self._index_len and pos not in repaired:
-            try:
-                self._chunk(pos, pos + 9, pos + self._index_len[pos])
-            except (struct.error, UnicodeDecodeError, ValueError):
-                pass
-            else:
-                self.damage.append(
-                    f"damaged record header at byte {pos} ({why}); "
-                    "the chunk was read with the length in the chunk index"
-                )
-                return pos
-        later = [s for s in self._index_len if s > pos]
-        if not later:
-            return None
-        nxt = min(later)
-        self.damage.append(f"unreadable bytes {pos}..{nxt} skipped ({why})")
-        return nxt
-
-    def _peek_summary(self) -> None:
-        """Read the summary section before the data section: its chunk index lets the scan
-        step over a damaged record, and other writers keep definitions there (or only
-        inside chunks). Anything malformed here is a warning, never an exception."""
-        mm, size = self._mm, self.size
-        foot = size - 8 - FOOTER_LEN
-        if foot < len(MAGIC) or bytes(mm[size - 8 :]) != MAGIC:
-            return
-        op, length, sstart, soff, crc = struct.unpack_from("<BQQQI", mm, foot)
-        if op != OP_FOOTER or length != 20 or not sstart:
-            return
-        if not len(MAGIC) <= sstart <= foot:
-            self._summary_problem = "footer points outside the file (summary lost)"
-            return
-        if crc and zlib.crc32(mm[sstart : foot + 1 + 8 + 16]) != crc:
-            self._summary_problem = "summary CRC mismatch (summary ignored)"
-            return
-        end = soff if sstart <= soff <= foot else foot
-        pos = sstart
-        schemas: dict[int, SchemaInfo] = {}
-        channels: dict[int, ChannelInfo] = {}
-        index: dict[int, int] = {}
-        try:
-            while pos + 9 <= end:
-                rop, rlen = struct.unpack_from("<BQ", mm, pos)
-                rend = pos + 9 + rlen
-                if rend > end:
-                    raise ValueError(f"record at byte {pos} overruns the summary")
-                if rop == OP_STATISTICS:
-                    try:
-                        self.statistics = read_statistics(mm, pos + 9, rend)
-                    except (struct.error, ValueError) as exc:
-                        self.warnings.append(
-                            f"{self.path}: malformed Statistics record in the summary "
-                            f"({exc}): statistics ignored"
-                        )
-                elif rop == OP_SCHEMA:
-                    schema = self._schema(mm, pos + 9)
-                    schemas[schema.id] = schema
-                elif rop == OP_CHANNEL:
-                    channel = self._channel(mm, pos + 9)
-                    channels[channel.id] = channel
-                elif rop == OP_CHUNK_INDEX:
-                    start, clen = struct.unpack_from("<QQ", mm, pos + 9 + 16)
-                    if len(MAGIC) <= start and start + clen <= sstart and clen > 9:
-                        index[start] = clen
-                pos = rend
-        except (struct.error, UnicodeDecodeError, ValueError) as exc:
-            self.warnings.append(f"{self.path}: malformed summary section ({exc})")
-        self._sum_schemas, self._sum_channels, self._index_len = schemas, channels, index
-
-    @staticmethod
-    def _schema(buf: Any, p: int) -> SchemaInfo:
-        (sid,) = struct.unpack_from("<H", buf, p)
-        name, p = read_str(buf, p + 2)
-        enc, p = read_str(buf, p)
-        (n,) = struct.unpack_from("<I", buf, p)
-        return SchemaInfo(sid, name, enc, bytes(buf[p + 4 : p + 4 + n]))
-
-    @staticmethod
-    def _channel(buf: Any, p: int) -> ChannelInfo:
-        cid, sid = struct.unpack_from("<HH", buf, p)
-        topic, p = read_str(buf, p + 4)
-        enc, p = read_str(buf, p)
-        return ChannelInfo(cid, sid, topic, enc, read_map(buf, p))
-
-    def _chunk(self, pos: int, p: int, end: int) -> ChunkInfo:
-        start, stop, usize, crc = struct.unpack_from("<QQQI", self._mm, p)
-        comp, p = read_str(self._mm, p + 28)
-        (dlen,) = struct.unpack_from("<Q", self._mm, p)
-        if p + 8 + dlen > end:
-            raise ValueError("chunk data overruns its record")
-        return ChunkInfo(pos, end - pos, start, stop, usize, crc, comp, p + 8, dlen)
-
-    def _attachment(self, pos: int, p: int, end: int) -> AttachmentInfo:
-        log_time, create_time = struct.unpack_from("<QQ", self._mm, p)
-        name, p = read_str(self._mm, p + 16)
-        media, p = read_str(self._mm, p)
-        (n,) = struct.unpack_from("<Q", self._mm, p)
-        if p + 8 + n + 4 > end:
-            raise ValueError("attachment data overruns its record")
-        return AttachmentInfo(name, media, log_time, create_time, p + 8, n, pos, end - pos)
-
     def _read_footer(self) -> None:
         """After the data section: is the summary there and sound? Definitions only the
         summary or the chunks hold are taken in; damage found on the way is reported."""
-        for sid, schema in self._sum_schemas.items():
+        for sid, schema in self._summary.schemas.items():
             self.schemas.setdefault(sid, schema)
-        for cid, channel in self._sum_channels.items():
+        for cid, channel in self._summary.channels.items():
             self.channels.setdefault(cid, channel)
-        self._definitions_from_chunks()
-        self._report_damage()
+        unindexed = self._definitions_from_chunks()
+        self._report_damage(unindexed)
         foot = self.size - 8 - FOOTER_LEN
-        if self._summary_problem:
-            self.warnings.append(f"{self.path}: {self._summary_problem}")
+        if self._summary.problem:
+            self.warnings.append(f"{self.path}: {self._summary.problem}")
             return
         if foot < self.scan_end or bytes(self._mm[self.size - 8 :]) != MAGIC:
             self.warnings.append(f"{self.path}: no footer after the data section (summary lost)")
@@ -451,47 +323,17 @@ class McapLog:
             return
         self.summary_ok = True
 
-    def _definitions_from_chunks(self) -> None:
-        """Schema and Channel records that live only inside chunks (the spec allows it; the
-        mcap package's writer puts them there): looked for only when a chunk's index names
-        a channel no top-level record defined, or an unindexed chunk is all there is."""
-        known = set(self.channels)
-        wanted = [
-            c for c in self.chunks
-            if (c.indexed and not known.issuperset(c.index)) or (not c.indexed and not known)
-        ]  # fmt: skip
-        for info in wanted:
-            buf = self.decompress(info)
-            if buf is None:
-                continue
-            for op, body, _ in walk_records(buf, {OP_SCHEMA, OP_CHANNEL}):
-                try:
-                    if op == OP_SCHEMA:
-                        schema = self._schema(buf, body)
-                        self.schemas.setdefault(schema.id, schema)
-                    else:
-                        channel = self._channel(buf, body)
-                        self.channels.setdefault(channel.id, channel)
-                except (struct.error, UnicodeDecodeError, ValueError):
-                    continue
+    def _definitions_from_chunks(self) -> dict[int, bytes | None]:
+        return definitions_from_chunks(self.chunks, self.schemas, self.channels, self.decompress)
 
-    def _report_damage(self) -> None:
-        """Damage the scan stepped over, with the frames it cost, counted from the
-        summary's statistics against what the chunk indexes of the readable chunks hold."""
+    def _report_damage(self, unindexed: dict[int, bytes | None]) -> None:
+        """Damage the scan stepped over, each note with the frames it cost."""
         if not self.damage:
             return
         fid = self.channel_id(S.FRAME_TOPIC)
+        n = frames_lost_to_damage(self.chunks, fid, self.statistics, self.decompress, unindexed)
         lost = ""
-        stats = self.statistics
-        if fid is not None and stats is not None and fid in stats["channel_message_counts"]:
-            have = 0
-            for c in self.chunks:
-                if c.indexed and fid in c.index:
-                    have += c.index[fid][1] // 16
-                elif not c.indexed:
-                    buf = self.decompress(c)
-                    have += len(walk_chunk(buf, {fid}).get(fid, ())) if buf is not None else 0
-            n = max(0, stats["channel_message_counts"][fid] - have)
+        if n is not None:
             self.lost_frames = n
             lost = f"; {n} frames lost" if n else "; no frames lost"
         self.damage = [d + lost for d in self.damage]

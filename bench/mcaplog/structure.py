@@ -1,5 +1,6 @@
 """The MCAP record structure as the reader needs it: opcodes, what the scan finds (schemas,
-channels, attachments, chunks) and the little-endian field readers of the MCAP spec."""
+channels, attachments, chunks) and the little-endian field and record readers of the MCAP
+spec."""
 
 from __future__ import annotations
 
@@ -183,6 +184,45 @@ def read_statistics(buf: Any, p: int, end: int) -> dict[str, Any]:
         "message_end_time": t1,
         "channel_message_counts": counts,
     }
+
+
+def parse_schema(buf: Any, p: int) -> SchemaInfo:
+    """A Schema record's body at ``p``."""
+    (sid,) = struct.unpack_from("<H", buf, p)
+    name, p = read_str(buf, p + 2)
+    enc, p = read_str(buf, p)
+    (n,) = struct.unpack_from("<I", buf, p)
+    return SchemaInfo(sid, name, enc, bytes(buf[p + 4 : p + 4 + n]))
+
+
+def parse_channel(buf: Any, p: int) -> ChannelInfo:
+    """A Channel record's body at ``p``."""
+    cid, sid = struct.unpack_from("<HH", buf, p)
+    topic, p = read_str(buf, p + 4)
+    enc, p = read_str(buf, p)
+    return ChannelInfo(cid, sid, topic, enc, read_map(buf, p))
+
+
+def parse_chunk(buf: Any, pos: int, p: int, end: int) -> ChunkInfo:
+    """The header of the Chunk record at ``pos`` (body at ``p``, record ends at ``end``);
+    its data stays in the file."""
+    start, stop, usize, crc = struct.unpack_from("<QQQI", buf, p)
+    comp, p = read_str(buf, p + 28)
+    (dlen,) = struct.unpack_from("<Q", buf, p)
+    if p + 8 + dlen > end:
+        raise ValueError("chunk data overruns its record")
+    return ChunkInfo(pos, end - pos, start, stop, usize, crc, comp, p + 8, dlen)
+
+
+def parse_attachment(buf: Any, pos: int, p: int, end: int) -> AttachmentInfo:
+    """The Attachment record at ``pos``: where its data lies, not the data."""
+    log_time, create_time = struct.unpack_from("<QQ", buf, p)
+    name, p = read_str(buf, p + 16)
+    media, p = read_str(buf, p)
+    (n,) = struct.unpack_from("<Q", buf, p)
+    if p + 8 + n + 4 > end:
+        raise ValueError("attachment data overruns its record")
+    return AttachmentInfo(name, media, log_time, create_time, p + 8, n, pos, end - pos)
 
 
 def walk_records(buf: Any, ops: set[int]) -> Iterator[tuple[int, int, int]]:

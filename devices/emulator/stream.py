@@ -36,6 +36,7 @@ from devices.emulator.simulation import (
     _status_stream,
     _targeted,
 )
+from devices.emulator.stream_carry import ROW_DTYPE, Reorder, Spikes
 from devices.emulator.vibration import body_vibration
 from devices.emulator.world import (
     board_temperature,
@@ -55,9 +56,6 @@ CHUNK_S = 10.0
 
 _VALUE = ("drift", "spike", "saturate")
 _HIT = (*_VALUE, "stuck", "status")
-_ROW_DTYPE = np.dtype(
-    [("can_id", "<u4"), ("data", "u1", (8,)), ("kind", "u1"), ("channel", "u1"), ("when_us", "<i8")]
-)
 
 
 @dataclass(slots=True)
@@ -189,18 +187,18 @@ class _Run:
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last_send: int | None = None
         self.reorders = [
-            _Reorder(f, self.pick_rng[f.index]) for f in sc.faults if f.kind == "reorder"
+            Reorder(f, self.pick_rng[f.index]) for f in sc.faults if f.kind == "reorder"
         ]
 
     # -- whole-run plans -----------------------------------------------------------------
     def _sample_us(self, idx: np.ndarray) -> np.ndarray:
         return (idx * 1_000_000 + self.rate // 2) // self.rate
 
-    def _spike_plans(self) -> dict[int, list[_Spikes]]:
+    def _spike_plans(self) -> dict[int, list[Spikes]]:
         """Per spike fault, per channel, the spike positions apply_value_fault draws for the
         whole window (as bits: 1/8 byte per sample); their signs are drawn as chunks need
         them (they come after the positions from the same generator, in position order)."""
-        plans: dict[int, list[_Spikes]] = {}
+        plans: dict[int, list[Spikes]] = {}
         for f in self.sc.faults:
             if f.kind != "spike":
                 continue
@@ -222,7 +220,7 @@ class _Run:
                 for done in range(0, count, 1 << 20):  # past the signs: the next channel's
                     rng.random(min(1 << 20, count - done))  # (advance() would drop a
                     # buffered half-word of the position draws)
-                plans[f.index].append(_Spikes(ch, i0, length, np.packbits(bits), signs))
+                plans[f.index].append(Spikes(ch, i0, length, np.packbits(bits), signs))
         return plans
 
     def _first_sample_at(self, us: int) -> int:
@@ -412,7 +410,7 @@ class _Run:
                     counts.add(f.index, removed=np.count_nonzero(sel))
         if counts is not None:
             self._count(nominal, hit, crc_rows, uids, tag, a, m)
-        rows = np.zeros(len(uids), dtype=_ROW_DTYPE)
+        rows = np.zeros(len(uids), dtype=ROW_DTYPE)
         rows["can_id"] = nominal.can_id[uids]
         rows["data"] = data[uids]
         rows["kind"] = nominal.kind[uids]
@@ -519,86 +517,6 @@ class _Run:
         truth["speed_mps"] = motion.speed_mps
         truth["position_m"] = motion.position_m
         return truth
-
-
-class _Spikes:
-    """One channel's spikes of a spike fault: positions as bits over the window, signs drawn
-    in position order as the chunks reach them (those reaching into the next chunk kept)."""
-
-    def __init__(
-        self, channel: int, i0: int, length: int, bits: np.ndarray, signs: np.random.Generator
-    ) -> None:
-        self.channel, self.i0, self.length, self.bits, self.signs = channel, i0, length, bits, signs
-        self.drawn = 0  # window offsets below this have their signs drawn
-        self.kept = np.zeros(0, dtype=np.int64)  # starts (window offsets) still reaching on
-        self.kept_sign = np.zeros(0, dtype=np.float64)
-
-    def _starts(self, lo: int, hi: int) -> np.ndarray:
-        """Window offsets in [lo, hi) where a spike starts."""
-        lo, hi = max(lo, 0), min(hi, self.length)
-        if lo >= hi:
-            return np.zeros(0, dtype=np.int64)
-        b0 = lo // 8
-        raw = np.unpackbits(self.bits[b0 : (hi + 7) // 8])[lo - 8 * b0 : hi - 8 * b0]
-        return np.flatnonzero(raw) + lo
-
-    def pulses(self, a: int, m: int, width: int, amp: float) -> tuple[np.ndarray, np.ndarray]:
-        """Local sample indices and values to add for chunk [a, a + m), ordered as
-        apply_value_fault adds them (by offset k within the pulse, then by start)."""
-        hi = a + m - self.i0
-        new = self._starts(self.drawn, hi)
-        self.drawn = max(self.drawn, min(hi, self.length))
-        sign = np.where(self.signs.random(len(new)) < 0.5, -1.0, 1.0)
-        starts = np.concatenate([self.kept, new])
-        signs = np.concatenate([self.kept_sign, sign])
-        live = starts + width - 1 >= a - self.i0  # still reaching into this chunk
-        starts, signs = starts[live], signs[live]
-        reach = starts + width - 1 >= hi  # reaching into the next chunk too
-        self.kept, self.kept_sign = starts[reach], signs[reach]
-        at = (starts[None, :] + np.arange(width, dtype=np.int64)[:, None]).ravel()
-        value = np.tile(signs * amp, width)
-        keep = (at < self.length) & (at >= a - self.i0) & (at < hi)
-        return at[keep] + self.i0 - a, value[keep]
-
-
-class _Reorder:
-    """One reorder fault over the frame stream: each picked frame goes ``depth`` places
-    later (fx.reorder_rows), send times stay with the places. Frames whose new place lies
-    past what has arrived wait for the next chunk."""
-
-    def __init__(self, fault: Fault, rng: np.random.Generator) -> None:
-        self.fault, self.rng = fault, rng
-        self.depth = fault.params["depth"]
-        self.seen = 0  # frames that came in
-        self.rows = np.zeros(0, dtype=_ROW_DTYPE)  # waiting, with their sort keys
-        self.keys = np.zeros(0, dtype=np.float64)
-        self.slots = np.zeros(0, dtype=np.int64)  # send times of places not yet filled
-        self.moved = 0
-
-    def feed(
-        self, rows: np.ndarray, send_us: np.ndarray, last: bool
-    ) -> tuple[np.ndarray, np.ndarray]:
-        f = self.fault
-        kind, ch, when = rows["kind"], rows["channel"], rows["when_us"]
-        cand = fx.frame_targets(f, kind, ch) & fx.in_window(when, f)
-        sel = fx.pick(cand, f.params["probability"], self.rng)
-        self.moved += int(np.count_nonzero(sel))
-        keys = np.arange(self.seen, self.seen + len(rows), dtype=np.float64)
-        keys[sel] += self.depth + 0.5
-        self.seen += len(rows)
-        all_rows = np.concatenate([self.rows, rows])
-        all_keys = np.concatenate([self.keys, keys])
-        self.slots = np.concatenate([self.slots, send_us])
-        order = np.argsort(all_keys, kind="stable")
-        all_rows, all_keys = all_rows[order], all_keys[order]
-        ready = len(all_keys) if last else int(np.searchsorted(all_keys, self.seen))
-        out_rows, self.rows, self.keys = all_rows[:ready], all_rows[ready:], all_keys[ready:]
-        out_t, self.slots = self.slots[:ready], self.slots[ready:]
-        return out_rows, out_t
-
-    def take_moved(self) -> int:
-        moved, self.moved = self.moved, 0
-        return moved
 
 
 def _between(fs: FrameSet, lo: int | None, hi: int | None) -> FrameSet:
