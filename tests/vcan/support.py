@@ -311,6 +311,39 @@ RECEIVE_TIME = "utc"
 file (empty there), and candump's log has it to the microsecond only."""
 
 
+ODOMETER_AGE = ("gradient_signed_permil", "gradient_sigma_permil", "odometer_suspect", "coasting")
+"""The estimator's columns that depend on how old each SPEED_REF reading is at the sample that
+applies it, which the bench tells from receive times: a live bus, candump's microseconds and
+an emulator's schedule carry the same frames with receive times a little apart, so these
+agree closely between them, not bit for bit (a replay of the run's own MCAP agrees exactly)."""
+
+
+def assert_same_results(a: str, b: str, *ignored: str) -> None:
+    """Two result CSVs of the same frames with different receive times: every column but the
+    receive time and ``ignored`` identical; the estimator's gradient (ODOMETER_AGE) given at
+    the same samples but for a few, and within twice its sigma where both give it."""
+    skip = (RECEIVE_TIME, *ignored)
+    assert columns_without(a, *skip, *ODOMETER_AGE) == columns_without(b, *skip, *ODOMETER_AGE)
+    if "gradient_signed_permil" in ignored:
+        return
+    ga, gb = (_column(text, "gradient_signed_permil") for text in (a, b))
+    assert len(ga) == len(gb)
+    agree = np.isfinite(ga) == np.isfinite(gb)
+    assert agree.mean() >= 0.9, agree.mean()
+    both = np.isfinite(ga) & np.isfinite(gb)
+    if both.any():
+        sa, sb = (_column(text, "gradient_sigma_permil") for text in (a, b))
+        diff = np.abs(ga[both] - gb[both])
+        within = diff <= 2.0 * np.maximum(sa[both], sb[both])
+        assert within.mean() >= 0.99, (within.mean(), np.quantile(diff, [0.5, 0.99, 1.0]))
+
+
+def _column(csv_text: str, name: str) -> np.ndarray:
+    rows = [line.split(",") for line in csv_text.splitlines()]
+    k = rows[0].index(name)
+    return np.array([float(r[k]) if r[k] else np.nan for r in rows[1:]])
+
+
 def columns_without(csv_text: str, *names: str) -> list[list[str]]:
     """The CSV's cells, row by row, without the columns ``names``."""
     rows = [line.split(",") for line in csv_text.splitlines()]

@@ -16,11 +16,10 @@ import pytest
 
 from protocol.records import FLAG_EXTENDED
 from tests.vcan.support import (
-    RECEIVE_TIME,
     Bench,
+    assert_same_results,
     bench_main,
     cangen,
-    columns_without,
     frames_sent,
     log_info,
     need,
@@ -160,12 +159,11 @@ def test_board_a_is_fused_as_if_alone_on_the_bus(two: TwoBoards) -> None:
     alone = replay_csv(two.logs["a"], two.folder / "alone_a.csv")
     assert len(alone.splitlines()) == 1 + 600
     live = two.csv["a"].read_text()
-    assert columns_without(live, RECEIVE_TIME) == columns_without(alone, RECEIVE_TIME)
+    assert_same_results(live, alone)
 
 
 def test_board_b_is_fused_as_if_alone_but_for_the_shared_odometer(two: TwoBoards) -> None:
     alone = replay_csv(two.logs["b"], two.folder / "alone_b.csv", two.config_b)
     live = two.csv["b"].read_text()
     assert len(live.splitlines()) == len(alone.splitlines()) == 1 + 600
-    ignored = (RECEIVE_TIME, *SPEED_COLUMNS)
-    assert columns_without(live, *ignored) == columns_without(alone, *ignored)
+    assert_same_results(live, alone, *SPEED_COLUMNS)
