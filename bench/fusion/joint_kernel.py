@@ -114,9 +114,8 @@ W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
 
 
 @njit(cache=True)
-def _update(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
-    """Scalar measurement update with row h (NX,), innovation nu and variance r (``ph``:
-    scratch of NX). P -= K (P h)^T, then symmetrised. Returns the innovation variance."""
+def _project(cov, h, r, ph):  # type: ignore[no-untyped-def]
+    """ph = P h (scratch of NX); returns the innovation variance h^T P h + r."""
     for i in range(NX):
         acc = 0.0
         for j in range(NX):
@@ -125,6 +124,14 @@ def _update(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
     s = r
     for i in range(NX):
         s += h[i] * ph[i]
+    return s
+
+
+@njit(cache=True)
+def _update(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
+    """Scalar measurement update with row h (NX,), innovation nu and variance r (``ph``:
+    scratch of NX). P -= K (P h)^T, then symmetrised. Returns the innovation variance."""
+    s = _project(cov, h, r, ph)
     for i in range(NX):
         x[i] += ph[i] / s * nu
     for i in range(NX):
@@ -145,14 +152,7 @@ def _update_motion(x, cov, h, nu, r, ph):  # type: ignore[no-untyped-def]
     suspect odometer may still hold the speed, but neither the acceleration it would bend
     (and u would then pass the bend on to s) nor the gradient. P_vv and P_v. get the
     update, the rest of P stays."""
-    for i in range(NX):
-        acc = 0.0
-        for j in range(NX):
-            acc += cov[i, j] * h[j]
-        ph[i] = acc
-    s = r
-    for i in range(NX):
-        s += h[i] * ph[i]
+    s = _project(cov, h, r, ph)
     kv = ph[IV] / s
     x[IV] += kv * nu
     for j in range(NX):
