@@ -266,12 +266,18 @@ class EngineSession:
     def snapshot(self, last: int = HISTORY) -> Snapshot:
         with self._snap_lock:
             if not self.stopping:
-                with contextlib.suppress(EngineGone):
+                try:
                     self.call("snapshot", timeout=SNAPSHOT_TIMEOUT_S, on_reply=self._take)
+                except EngineGone:
+                    # the send can fail before the reader has seen the end of the pipe:
+                    # let it finish (report, error) so this picture says the run is over
+                    self._channel.wait_gone(2.0)
             with self._ring_lock:
                 base = self._last if self._last is not None else self._empty()
                 results = self._ring.last(last)
-        running = base.running and not self._channel.gone
+        # an engine that sent its report (it stopped on SIGTERM) runs no more, whatever
+        # the last picture it sent before said
+        running = base.running and not self._channel.gone and self.report is None
         return dataclasses.replace(base, results=results, running=running, error=self.runner.error)
 
     def _take(self, reply: tuple[Snapshot, bool, bool]) -> None:
