@@ -50,11 +50,12 @@ class EstimatorSettings:
     # the joint filter (docs/ESTIMATOR.md): process noise
     accel_psd: float = 0.1  # acceleration random walk, (m/s^2)^2/s
     grade_psd_per_m: float = 1e-9  # g sin(alpha) random walk per metre, (m/s^2)^2/m
-    grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m (rough ride)
-    grade_rate_psd_smooth_per_m: float = 1e-9  # the same on a smooth ride (w sees every curve)
+    grade_rate_psd_per_m: float = 1e-8  # its rate per metre, ((m/s^2)/m)^2/m (smooth ride)
+    grade_rate_psd_rough_per_m: float = 1e-9  # the same on a rough ride (w cannot pin k)
+    rough_ride_mps2: float = 0.02  # spread of w's 0.05 s block means at which a ride is rough
     blind_grade_rate_psd_per_m: float = 1e-7  # the same while no odometer frame is accepted
     grade_sigma0_mps2: float = 0.5  # 1-sigma of g sin(alpha) before any information
-    grade_rate_sigma0: float = 0.003  # 1-sigma of its rate per metre at the start, (m/s^2)/m
+    grade_rate_sigma0: float = 0.001  # 1-sigma of its rate per metre at the start, (m/s^2)/m
     grade_rate_jump: float = 0.003  # 1-sigma added to k when the odometer shows a missed curve
     # odometer
     speed_quantum_mps: float = 0.001  # SPEED_REF resolution (adds quantum^2/12 of variance)
@@ -81,11 +82,20 @@ class EstimatorSettings:
     curve_detect_s: float = 0.3  # time constant of the vertical-curve detector on w
     curve_detect_sigma: float = 4.0  # it fires beyond this many of its learnt sigmas
     curve_detect_min_mps2: float = 0.02  # and beyond this change of w (v^2/R)
-    vibration_corr_s: float = 0.2  # correlation time of the body's vertical vibration
+    vibration_corr_s: float = 0.1  # correlation time of what the notch leaves of the vibration
+    vibration_notch_radius: float = 0.9  # adaptive notch on w for the body's bounce (0: none)
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
 
 
-ZERO_ALLOWED = frozenset({"odometer_latency_s", "latency_sigma_s", "w_block_s", "bias_sigma_mps2"})
+ZERO_ALLOWED = frozenset(
+    {
+        "odometer_latency_s",
+        "latency_sigma_s",
+        "w_block_s",
+        "bias_sigma_mps2",
+        "vibration_notch_radius",
+    }
+)
 """Estimator settings that may be 0 (every other one must be > 0)."""
 SIGMA_LIMIT_MAX = 100.0
 """Upper bound of fusion.gradient_sigma_limit_permil (beyond it a sigma says nothing)."""
@@ -202,7 +212,8 @@ ESTIMATOR_MAX: dict[str, float] = {
     "accel_psd": 1e3,
     "grade_psd_per_m": 1.0,
     "grade_rate_psd_per_m": 1.0,
-    "grade_rate_psd_smooth_per_m": 1.0,
+    "grade_rate_psd_rough_per_m": 1.0,
+    "rough_ride_mps2": 10.0,
     "blind_grade_rate_psd_per_m": 1.0,
     "grade_sigma0_mps2": 10.0,
     "grade_rate_sigma0": 1.0,
@@ -230,6 +241,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "curve_detect_sigma": 100.0,
     "curve_detect_min_mps2": 100.0,
     "vibration_corr_s": 10.0,
+    "vibration_notch_radius": 0.999,
     "bias_sigma_mps2": 1.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as

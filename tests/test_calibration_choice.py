@@ -138,7 +138,13 @@ def test_run_emulate_level_run_is_calibrated_as_built_and_replays_identically(
     assert len(rows["v1"]) > 1000
     for k in ("v1", "v2"):
         assert np.mean(rows[k] == 0) < 0.95, k  # not failing on every sample
-    assert abs(np.nanmean(rows["gradient_signed_permil"])) < 0.05  # level track
+    # level track: what it gives is 0 within its own sigma (0.1-0.3 permil over the first
+    # seconds, as the filter settles from a cold start), and most samples are given (with the
+    # nominal angles it withholds nine in ten, below)
+    grad, sigma = rows["gradient_signed_permil"], rows["gradient_sigma_permil"]
+    given = np.isfinite(grad)
+    assert given.mean() > 0.5 and abs(np.nanmean(grad)) < 0.15
+    assert np.mean(np.abs(grad[given]) <= 2.0 * sigma[given]) > 0.95
     # the replay of its log takes the recorded calibration: the same rows, bit for bit
     assert main(["replay", str(mcap), "--csv", str(again), "-q"]) == 0
     assert again.read_text() == live.read_text()

@@ -31,7 +31,8 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_QA] = s.accel_psd
     p[jl.P_QS] = s.grade_psd_per_m
     p[jl.P_QK] = s.grade_rate_psd_per_m
-    p[jl.P_QK_QUIET] = s.grade_rate_psd_smooth_per_m
+    p[jl.P_QK_ROUGH] = s.grade_rate_psd_rough_per_m
+    p[jl.P_WROUGH] = s.rough_ride_mps2
     p[jl.P_QL] = s.latency_psd
     p[jl.P_RV] = s.odometer_noise_floor_mps**2 + s.speed_quantum_mps**2 / 12.0
     p[jl.P_RV0] = s.speed_noise_mps**2 + s.speed_quantum_mps**2 / 12.0
@@ -77,6 +78,8 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_USTILL_TAU] = 2.0
     p[jl.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
     p[jl.P_BIAS] = s.bias_sigma_mps2
+    p[jl.P_NOTCH_RHO] = s.vibration_notch_radius
+    p[jl.P_NOTCH_MU] = 0.01
     return p
 
 

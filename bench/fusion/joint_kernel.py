@@ -40,6 +40,12 @@ from bench.fusion.joint_layout import (
     M_LAST_Z,
     M_NOISE2,
     M_NOISE_N,
+    M_NOTCH_IN,
+    M_NOTCH_OUT,
+    M_NOTCH_POW,
+    M_NOTCH_TH,
+    M_NOTCH_X1,
+    M_NOTCH_X2,
     M_OK_SINCE,
     M_QUANT,
     M_RESLOW,
@@ -57,9 +63,11 @@ from bench.fusion.joint_layout import (
     M_USTILL_N,
     M_WCOUNT,
     M_WE,
+    M_WE1,
     M_WEVAR,
     M_WFLOOR,
     M_WHOLD,
+    M_WPEND,
     M_WSUM,
     M_WT0,
     M_WVAR,
@@ -77,11 +85,13 @@ from bench.fusion.joint_layout import (
     P_LSIG,
     P_NOISE_FLOOR,
     P_NOISE_TAU,
+    P_NOTCH_MU,
+    P_NOTCH_RHO,
     P_QA,
     P_QB,
     P_QK,
     P_QK_BLIND,
-    P_QK_QUIET,
+    P_QK_ROUGH,
     P_QL,
     P_QS,
     P_RECOVER,
@@ -105,6 +115,7 @@ from bench.fusion.joint_layout import (
     P_WDET_VAR_TAU,
     P_WGATE,
     P_WRES_MAX,
+    P_WROUGH,
     P_WVAR_TAU,
     P_ZGATE,
     P_ZHOLD,
@@ -181,8 +192,10 @@ def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
     it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
     the vertical-curve detector cannot see a curve start: k's process noise per metre is
     then the one that covers such jumps (P_QK_BLIND). ``rough`` (0..1): how much the body's
-    vibration drowns w, in which the curve detector can miss a curve: k's random walk goes
-    from P_QK_QUIET (a smooth ride, w sees every curve) to P_QK."""
+    vibration drowns w. On a smooth ride w pins k at once, so k may walk freely (P_QK) and
+    the filter settles quickly; on a rough one w cannot, and a free k would only blur s:
+    k then walks slowly (P_QK_ROUGH, log-interpolated) and the curve detector, whose
+    pending decisions widen the output's sigma, follows the curves."""
     v, k = x[IV], x[IK]
     kdt, vdt = k * dt, v * dt
     x[IV] = v + x[IA] * dt
@@ -201,9 +214,7 @@ def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
     d = abs(v) * dt  # metres travelled: the gradient changes only with distance
     if d > 0.0:
         qs = p[P_QS]
-        qk = p[P_QK_QUIET] + rough * (p[P_QK] - p[P_QK_QUIET])
-        if blind:
-            qk = p[P_QK_BLIND]
+        qk = p[P_QK_BLIND] if blind else p[P_QK] * (p[P_QK_ROUGH] / p[P_QK]) ** rough
         cov[IS, IS] += qs * d + qk * d * d * d / 3.0
         cov[IS, IK] += qk * d * d / 2.0
         cov[IK, IS] += qk * d * d / 2.0
@@ -224,6 +235,27 @@ def _restart_speed(x, cov, z, r):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def _step_age(e1, e):  # type: ignore[no-untyped-def]
+    """How long ago (in detector time constants) a step began, from the two cascaded moving
+    means it drove: e1 = D (1 - exp(-x)), e = D (1 - exp(-x) (1 + x)); e / e1 rises from 0
+    to 1 with x, so a bisection on it finds x. 0 when they disagree in sign."""
+    if e1 == 0.0 or e / e1 <= 0.0:
+        return 0.0
+    r = e / e1
+    if r >= 0.999:
+        return 20.0
+    lo, hi = 0.0, 20.0
+    for _ in range(40):
+        x = 0.5 * (lo + hi)
+        q = math.exp(-x)
+        if (1.0 - q * (1.0 + x)) / (1.0 - q) < r:
+            lo = x
+        else:
+            hi = x
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True)
 def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-def]
     """A vertical curve's start or end under vibration: the block innovations' moving mean
     departs from zero by more than its own learnt spread. k then jumps by what explains it,
@@ -231,13 +263,26 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
     matching (correlated) covariance, so the next updates can put right what was missed."""
     tau = p[P_WDET_TAU]
     alpha = span / tau if span < tau else 1.0
-    e = m[M_WE] + alpha * (nu - m[M_WE])
+    # two moving means in cascade: the body's bounce (a few Hz) falls off as f^-2, so a
+    # step of v^2/R stands out of a rough ride within about 2 tau
+    e1 = m[M_WE1] + alpha * (nu - m[M_WE1])
+    m[M_WE1] = e1
+    e = m[M_WE] + alpha * (e1 - m[M_WE])
     m[M_WE] = e
     var = m[M_WEVAR]
     big = e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and abs(e) > p[P_WDET_MIN]
+    # half way to firing: a curve may have started, and s has been moving by its k since;
+    # the output's sigma says so until the detector decides (the state is not touched)
+    half = 4.0 * e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and 2.0 * abs(e) > p[P_WDET_MIN]
+    # the step the two means imply, and when it began
+    age = _step_age(e1, e)
+    step = e1 / (1.0 - math.exp(-age)) if age > 0.0 else e1
+    m[M_WPEND] = abs(step / hk) * abs(x[IV]) * age * tau if (half and hk != 0.0) else 0.0
     if big and bi >= m[M_WHOLD] and hk * p[P_KMAX] > abs(e):
-        dk = e / hk
-        ds = dk * x[IV] * tau
+        dk = step / hk
+        kmax = p[P_KMAX]
+        dk = kmax if dk > kmax else (-kmax if dk < -kmax else dk)
+        ds = dk * x[IV] * age * tau
         for i in range(NX):
             di = dk if i == IK else (ds if i == IS else 0.0)
             if di == 0.0:
@@ -246,10 +291,51 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
                 dj = dk if j == IK else (ds if j == IS else 0.0)
                 cov[i, j] += di * dj
         m[M_WE] = 0.0
-        m[M_WHOLD] = bi + tau
+        m[M_WE1] = 0.0
+        m[M_WPEND] = 0.0
+        m[M_WHOLD] = bi + 2.0 * tau
     elif not big:
+        # learnt from what is not a curve: a curve under the threshold (its end, after the
+        # start fired) must not widen the spread the next one is judged by
+        e2 = e * e
+        quiet = p[P_WDET_MIN] / p[P_WDET_SIGMA]
+        if var > quiet * quiet and e2 > 4.0 * var:
+            e2 = 4.0 * var
         beta = span / p[P_WDET_VAR_TAU]
-        m[M_WEVAR] = var + beta * (e * e - var)
+        m[M_WEVAR] = var + beta * (e2 - var)
+
+
+@njit(cache=True)
+def _notch(m, p, nu):  # type: ignore[no-untyped-def]
+    """The block innovation with the body's bounce taken out: an adaptive notch (poles at
+    radius rho, zeros on the unit circle at the frequency it learns) whose DC gain is 1,
+    so a vertical curve's step in w passes whole while the bounce's tone does not."""
+    rho = p[P_NOTCH_RHO]
+    th = m[M_NOTCH_TH]
+    if th != th:
+        th = 0.0  # a quarter of the block rate until it learns the tone
+        m[M_NOTCH_X1] = 0.0
+        m[M_NOTCH_X2] = 0.0
+        m[M_NOTCH_POW] = 0.0
+    x1, x2 = m[M_NOTCH_X1], m[M_NOTCH_X2]
+    xn = nu + 2.0 * rho * th * x1 - rho * rho * x2
+    out = xn - 2.0 * th * x1 + x2
+    dc = (2.0 - 2.0 * th) / (1.0 - 2.0 * rho * th + rho * rho)
+    pw = m[M_NOTCH_POW] + 0.05 * (x1 * x1 - m[M_NOTCH_POW])
+    if pw > 0.0:
+        th += p[P_NOTCH_MU] * out * x1 / pw
+        th = 0.98 if th > 0.98 else (-0.98 if th < -0.98 else th)
+    m[M_NOTCH_TH], m[M_NOTCH_POW] = th, pw
+    m[M_NOTCH_X1], m[M_NOTCH_X2] = xn, x1
+    out /= dc
+    # only a tone is taken out: where the notch removes little (a smooth ride, no bounce),
+    # the innovation passes as it is, so a curve's step in w does not ring through it
+    m[M_NOTCH_IN] += 0.025 * (nu * nu - m[M_NOTCH_IN])
+    m[M_NOTCH_OUT] += 0.025 * (out * out - m[M_NOTCH_OUT])
+    ratio = m[M_NOTCH_IN] / m[M_NOTCH_OUT] if m[M_NOTCH_OUT] > 0.0 else 0.0
+    share = 0.5 * (ratio - 2.0)
+    share = 0.0 if share < 0.0 else (1.0 if share > 1.0 else share)
+    return nu + share * (out - nu)
 
 
 @njit(cache=True)
@@ -292,6 +378,8 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     h[IK] = v * v / c
     h[IB] = 1.0
     nu = mean - (c + v * v * k / c + x[IB])
+    if p[P_NOTCH_RHO] > 0.0:
+        nu = _notch(m, p, nu)
     hph = _innov_var(cov, h, 0.0)
     e2 = nu * nu - hph
     r = m[M_WVAR] if m[M_WVAR] > floor else floor
@@ -308,14 +396,21 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         # the train is fast enough for the curve to show at all
         dk = nu / h[IK]
         dk = p[P_KMAX] if dk > p[P_KMAX] else (-p[P_KMAX] if dk < -p[P_KMAX] else dk)
+        # and s has moved by the old k for the part of the block after the jump: both get
+        # the matching (correlated) variance, so this block's update puts both right
+        ds = dk * x[IV] * span
         cov[IK, IK] += dk * dk
+        cov[IK, IS] += dk * ds
+        cov[IS, IK] += dk * ds
+        cov[IS, IS] += ds * ds
     _update(x, cov, h, nu, r, ph)
     lim = p[P_WGATE] * s_nu
     e2 = lim if e2 > lim else (0.0 if e2 < 0.0 else e2)
     m[M_WVAR] += (e2 - m[M_WVAR]) / p[P_WVAR_TAU]
-    # rough: the learnt block variance against the white noise's (1 = four times above it)
-    rough = (m[M_WVAR] / floor - 1.0) / 4.0 if floor > 0.0 else 1.0
-    m[M_ROUGH] = 0.0 if rough < 0.0 else (1.0 if rough > 1.0 else rough)
+    # rough: the blocks' learnt spread on an absolute scale (a quiet w, however low its
+    # noise, is smooth; a few hundredths of m/s^2 hide the start of a curve)
+    rough = math.sqrt(m[M_WVAR]) / p[P_WROUGH] if m[M_WVAR] > 0.0 else 0.0
+    m[M_ROUGH] = 1.0 if rough > 1.0 else rough
 
 
 @njit(cache=True)
@@ -372,7 +467,9 @@ def run(  # type: ignore[no-untyped-def]
             m[M_LAST_B] = bi
         dt = bi - m[M_LAST_B]
         if dt > 0.0:
-            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]), m[M_ROUGH])
+            # without w nothing pins k: it walks as on the roughest ride
+            rough = m[M_ROUGH] if p[P_USE_W] != 0.0 else 1.0
+            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]), rough)
         m[M_LAST_B] = bi
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]
@@ -584,7 +681,8 @@ def run(  # type: ignore[no-untyped-def]
             if dt > 0.0 and slow * slow <= 16.0 * m[M_NOISE2] * dt / (2.0 * p[P_RESLOW_TAU]):
                 slow = 0.0
             slow *= gain_max
-            var = cov[IS, IS] + slow * slow + p[P_BIAS] * p[P_BIAS]
+            pend = m[M_WPEND]
+            var = cov[IS, IS] + slow * slow + p[P_BIAS] * p[P_BIAS] + pend * pend
             sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(var)
         else:
             grad = math.nan

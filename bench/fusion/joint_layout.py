@@ -59,8 +59,16 @@ M_USTILL = 27  # mean of u over the quiet part of the current standstill
 M_USTILL_N = 28  # samples in it (0: no standstill going on)
 M_STEP_T = 29  # board time of the latest acceleration step (u gate)
 M_STEP_A0 = 30  # the acceleration before it
-M_ROUGH = 31  # 0..1, how much vibration drowns w (see _predict)
-M_SIZE = 32
+M_WE1 = 31  # the curve detector's first moving mean (M_WE is the second, of this)
+M_NOTCH_X1 = 32  # the vibration notch's state (block innovations through its poles), n-1
+M_NOTCH_X2 = 33  # ... n-2
+M_NOTCH_TH = 34  # cos of its frequency per block (NaN: not started)
+M_NOTCH_POW = 35  # moving power of its state, for the normalised step of TH
+M_WPEND = 36  # s error a curve the detector is still judging may have caused, m/s^2
+M_NOTCH_IN = 37  # moving power of the block innovations into the notch
+M_NOTCH_OUT = 38  # ... and of what it leaves of them
+M_ROUGH = 39  # 0..1: how much the body's vibration drowns w (block spread, see _predict)
+M_SIZE = 40
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -111,8 +119,11 @@ P_UFAST_TAU = 44  # s, time constant of u's fast moving mean
 P_USTILL_TAU = 45  # s, longest memory of the standstill's mean of u
 P_WRES_MAX = 46  # m/s^2: w is not used while |the residual's slow mean| exceeds this
 P_BIAS = 47  # 1-sigma of the sensors' bias after calibration (drift), along the track
-P_QK_QUIET = 48  # k's random walk per metre on a smooth ride, ((m/s^2)/m)^2/m
-P_SIZE = 49
+P_NOTCH_RHO = 48  # pole radius of the adaptive notch on the block innovations (0: none)
+P_NOTCH_MU = 49  # its normalised adaptation step
+P_QK_ROUGH = 50  # k's random walk per metre on a rough ride
+P_WROUGH = 51  # m/s^2: block spread of w at which a ride counts as rough
+P_SIZE = 52
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
