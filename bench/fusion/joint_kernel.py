@@ -21,10 +21,12 @@ before the odometer can, so the gradient follows a curve instead of lagging it.
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 from numba import njit
 
+from bench.fusion import joint_layout, joint_updates, joint_w
 from bench.fusion.joint_layout import (
     IA,
     IB,
@@ -96,6 +98,7 @@ from bench.fusion.joint_layout import (
 )
 from bench.fusion.joint_updates import _innov_var, _update, _update_motion
 from bench.fusion.joint_w import _w_block
+from bench.fusion.kernel_cache import drop_stale
 
 
 @njit(cache=True)
@@ -426,3 +429,8 @@ def run(  # type: ignore[no-untyped-def]
         out_suspect[i] = m[M_SUSPECT] != 0.0
         out_coast[i] = coasting
         out_accel[i] = x[IA]
+
+
+# the loop freezes joint_w's, joint_updates' and joint_layout's code and constants into its
+# own machine code: numba's cache must be dropped when any of them changed (kernel_cache)
+drop_stale(run, (sys.modules[__name__], joint_w, joint_updates, joint_layout))
