@@ -16,7 +16,14 @@ from __future__ import annotations
 import numpy as np
 
 from bench.config import Config
-from bench.fusion.isolation import ExclusionLatch, Reason, ResidualIsolator, StuckDetector
+from bench.fusion.isolation import (
+    ExclusionLatch,
+    Reason,
+    ResidualIsolator,
+    StuckDetector,
+    carry_named,
+    carry_named_one,
+)
 from bench.fusion.joint import JointFilter
 from bench.fusion.least_squares import (
     FULL,
@@ -107,6 +114,7 @@ class Estimator:
         self.latch = ExclusionLatch(_ticks(s.recover_s))
         self.filter = JointFilter(config, self.geo)
         self._was_latched = [False, False, False]
+        self._named = -1  # the channel the current residual alarm named (-1: none)
 
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
@@ -144,6 +152,7 @@ class Estimator:
         cand = healthy[0] & healthy[1] & healthy[2]
         acc_healthy = acc if cand.all() else np.where(healthy, acc, 0.0)
         residual, single = self.isolator.push(acc_healthy, cand, a_ref)
+        single, self._named = carry_named(single, cand, self._named)
         reason = _reasons(single, stuck, present & ~usable)
         latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
         used = usable & ~latched
@@ -229,6 +238,7 @@ class Estimator:
         res_l: list[float] = []
         start_l: list[int] = []
         was_latched = self._was_latched
+        named = self._named
         for i, (ticks, t, seq, n, code, present, a, ok) in enumerate(
             zip(ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True)
         ):
@@ -243,6 +253,7 @@ class Estimator:
             residual, single = isolate(
                 (a0 if h0 else 0.0, a1 if h1 else 0.0, a2 if h2 else 0.0), h0 and h1 and h2, a_ref
             )
+            single, named = carry_named_one(single, h0 and h1 and h2, named)
             reason = (
                 _reason(single, stuck, present, ok)
                 if single >= 0 or not (h0 and h1 and h2)
@@ -284,6 +295,7 @@ class Estimator:
                 )
             )
         self._was_latched = was_latched
+        self._named = named
         frames = None
         if applied:
             when, speed, restart, still = zip(*applied, strict=True)

@@ -145,6 +145,37 @@ def _fixed_one(v: float) -> int:
 _EMPTY_ROW = (0, 0, 0, 0, 0)
 
 
+AMBIGUOUS = -2
+"""The isolator's verdict where the residual is beyond its limit but no pair stands out
+(a vertical curve's v^2/R, the reference acceleration lagging): one channel is still off."""
+
+
+def carry_named(single: np.ndarray, cand: np.ndarray, carry: int) -> tuple[np.ndarray, int]:
+    """The channel each sample's exclusion reason names (-1: none), and the carry for the
+    next batch. While the residual stays beyond its limit with no channel standing out,
+    the channel named earlier in the same alarm is still the one off: a drifting channel
+    must not be readmitted because a curve made the verdict ambiguous for a moment. A
+    sample with three healthy channels and no alarm ends the alarm; one without three
+    healthy channels tells nothing and keeps it."""
+    sets = (single >= 0) | ((single == -1) & cand)
+    idx = np.where(sets, np.arange(len(single)), -1)
+    np.maximum.accumulate(idx, out=idx)
+    last = np.where(idx >= 0, single[np.maximum(idx, 0)], carry)
+    last = np.where(last < 0, -1, last)  # an ended alarm names nobody
+    named = np.where(single == AMBIGUOUS, last, single)
+    named = np.where(named < 0, -1, named)
+    return named, int(last[-1]) if len(last) else carry
+
+
+def carry_named_one(single: int, cand: bool, carry: int) -> tuple[int, int]:
+    """Scalar twin of :func:`carry_named` for one sample: (named, carry)."""
+    if single >= 0:
+        return single, single
+    if single == AMBIGUOUS:
+        return carry, carry
+    return -1, (-1 if cand else carry)
+
+
 class ResidualIsolator:
     """Singles out one channel where the moving-mean residual exceeds the limit.
 
@@ -187,7 +218,8 @@ class ResidualIsolator:
         self, acc: np.ndarray, cand: np.ndarray, a_ref: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """(residual per sample, NaN without three healthy channels; channel 0..2 singled
-        out per sample, -1 for none) for channel-major ``acc`` (3, N), finite where ``cand``."""
+        out per sample, -1 for none, AMBIGUOUS where the residual is beyond the limit but
+        no channel stands out) for channel-major ``acc`` (3, N), finite where ``cand``."""
         n, w = len(cand), self.window
         tail = self._tail_array()
         residual = combine_arrays(self.geo.parity, *acc)
@@ -220,7 +252,8 @@ class ResidualIsolator:
         single = np.full(n, -1, dtype=np.int8)
         if need:
             hit_count = count if isinstance(count, int) else count[alarm]
-            single[alarm] = _isolate(_window_sums(misses, w)[:, alarm], hit_count)
+            named = _isolate(_window_sums(misses, w)[:, alarm], hit_count)
+            single[alarm] = np.where(named < 0, AMBIGUOUS, named)
         self._tail = np.vstack([fixed[n:], misses[:, n - lo :], counted[len(counted) - (w - 1) :]])
         if not all_cand:
             residual[~cand] = np.nan
@@ -250,7 +283,8 @@ class ResidualIsolator:
             return residual, -1
         mean_miss = [abs(m) / scale for m in sums[1:4]]
         order = sorted(mean_miss)
-        return residual, mean_miss.index(order[0]) if order[0] < ISOLATION_RATIO * order[1] else -1
+        named = order[0] < ISOLATION_RATIO * order[1]
+        return residual, mean_miss.index(order[0]) if named else AMBIGUOUS
 
     def _roll(self, row: tuple[int, ...]) -> list[int]:
         """Window sums including ``row``, which then joins the tail (the oldest row leaves)."""
