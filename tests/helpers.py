@@ -56,3 +56,29 @@ def read_until(
         if batch:
             batches.append(batch)
     return batches
+
+
+def assemble(
+    frames: list[RawFrame], rate: int = 200, cut: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(samples, events) of frames through an Assembler at ``rate``, pushed ``cut`` frames
+    at a time (None: all at once), then finished."""
+    from bench.pipeline.assembly import Assembler
+    from protocol.batch import decode_batch
+
+    arr = pack(frames)
+    asm = Assembler(rate)
+    outs, evs = [], []
+    step = cut or len(arr)
+    for pos in range(0, len(arr), step):
+        part = arr[pos : pos + step]
+        s, e = asm.push(part["t"], decode_batch(part), pos)
+        outs.append(s)
+        evs.append(e)
+    s, e = asm.finish()
+    return np.concatenate([*outs, s]), np.concatenate([*evs, e])
+
+
+def kinds(events: np.ndarray, kind: int) -> np.ndarray:
+    """The events of one kind."""
+    return events[events["kind"] == kind]

@@ -11,7 +11,7 @@ from bench.records.events import EventKind
 from bench.records.twins import ASSEMBLY_FRAMES as SCALAR_MAX
 from protocol.batch import decode_batch
 from protocol.records import RawFrame
-from tests.helpers import adc, instant, pack, status_frame
+from tests.helpers import adc, instant, kinds, pack, status_frame
 
 
 def assemble(frames: list[RawFrame], chunks: list[int] | None = None, rate: int = 200):
@@ -36,10 +36,6 @@ def assemble(frames: list[RawFrame], chunks: list[int] | None = None, rate: int 
     outs.append(s)
     evs.append(e)
     return np.concatenate(outs), np.concatenate(evs)
-
-
-def kinds(events, kind):
-    return events[events["kind"] == kind]
 
 
 def test_in_order_stream_gives_one_complete_sample_per_instant_across_counter_wrap():

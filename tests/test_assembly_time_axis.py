@@ -11,11 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.pipeline.assembly import Assembler
 from bench.records.events import EventKind
-from protocol.batch import decode_batch
 from protocol.records import RawFrame
-from tests.helpers import adc, instant, pack, status_frame
+from tests.helpers import adc, assemble, instant, kinds, status_frame
 
 T0 = 1.7e9
 K = 60  # instants per stream
@@ -25,24 +23,6 @@ BAD = 30  # the instant the glitch hits
 def stream(rate_known: bool) -> list[RawFrame]:
     frames = [status_frame(200, T0)] if rate_known else []
     return frames + [f for k in range(K) for f in instant(k, t0=T0)]
-
-
-def assemble(frames: list[RawFrame], cut: int | None = None):
-    arr = pack(frames)
-    asm = Assembler(200)
-    outs, evs = [], []
-    step = cut or len(arr)
-    for pos in range(0, len(arr), step):
-        part = arr[pos : pos + step]
-        s, e = asm.push(part["t"], decode_batch(part), pos)
-        outs.append(s)
-        evs.append(e)
-    s, e = asm.finish()
-    return np.concatenate([*outs, s]), np.concatenate([*evs, e])
-
-
-def kinds(events: np.ndarray, kind: EventKind) -> np.ndarray:
-    return events[events["kind"] == kind]
 
 
 def position(frames: list[RawFrame], k: int, ch: int) -> int:
@@ -65,7 +45,7 @@ def test_one_frame_stamped_early_is_a_time_outlier_not_1310_lost_samples(rate_kn
     frames = stream(rate_known)
     i = position(frames, BAD, 2)
     frames[i] = RawFrame(frames[i].t - 7.5, frames[i].can_id, frames[i].data)
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, cut=cut)
     assert samples["n"].tolist() == list(range(K))  # no sample split, none invented
     assert samples["present"].all()
     assert len(kinds(events, EventKind.SAMPLES_LOST)) == 0
@@ -84,7 +64,7 @@ def test_host_clock_step_is_a_notice_not_phantom_lost_samples(step_s, rate_known
     frames = stream(rate_known)
     i = position(frames, BAD, 1)
     frames = frames[:i] + [RawFrame(f.t + step_s, f.can_id, f.data) for f in frames[i:]]
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, cut=cut)
     assert samples["n"].tolist() == list(range(K))
     assert samples["present"].all()
     assert len(kinds(events, EventKind.SAMPLES_LOST)) == 0
@@ -103,7 +83,7 @@ def test_one_frame_with_a_wild_board_time_is_an_outlier(jump_ticks, rate_known, 
     frames = stream(rate_known)
     i = position(frames, BAD, 2)
     frames[i] = with_timestamp(frames[i], (BAD * 50 + jump_ticks) % 65536)
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, cut=cut)
     assert samples["n"].tolist() == list(range(K))
     present = np.ones((K, 3), dtype=bool)
     if not (jump_ticks == 5000 and not rate_known):  # before the rate, the counter places it
@@ -125,7 +105,7 @@ def test_board_clock_that_really_jumps_is_followed_after_one_frame(cut):
     frames = frames[:i] + [
         with_timestamp(f, (f.data[5] | f.data[6] << 8) + 30000) for f in frames[i:]
     ]
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, cut=cut)
     assert len(kinds(events, EventKind.OUTLIER)) == 1
     assert kinds(events, EventKind.CLOCK_STEP)["value"].tolist() == [-3000]
     assert len(samples) == K

@@ -16,11 +16,9 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.pipeline.assembly import Assembler
 from bench.records.events import EventKind
-from protocol.batch import decode_batch
 from protocol.records import RawFrame
-from tests.helpers import instant, pack, status_frame
+from tests.helpers import assemble, instant, kinds, status_frame
 
 RATE = 100
 T0 = 1.7e9
@@ -38,24 +36,6 @@ def stream(keep: list[int], shift_from: int, shift_s: float, rate_known: bool) -
     return frames
 
 
-def assemble(frames: list[RawFrame], cut: int | None):
-    arr = pack(frames)
-    asm = Assembler(RATE)
-    outs, evs = [], []
-    step = cut or len(arr)
-    for pos in range(0, len(arr), step):
-        part = arr[pos : pos + step]
-        s, e = asm.push(part["t"], decode_batch(part), pos)
-        outs.append(s)
-        evs.append(e)
-    s, e = asm.finish()
-    return np.concatenate([*outs, s]), np.concatenate([*evs, e])
-
-
-def kinds(events: np.ndarray, kind: EventKind) -> np.ndarray:
-    return events[events["kind"] == kind]
-
-
 @pytest.mark.parametrize("shift_s", [0.3, -0.3, 0.9])
 @pytest.mark.parametrize("rate_known", [True, False])
 @pytest.mark.parametrize("cut", CUTS)
@@ -63,7 +43,7 @@ def test_gap_past_half_a_wrap_with_a_delay_change_keeps_the_time_axis(shift_s, r
     """The reproduction: 10 s at 100 Hz, 2.36 s .. 5.65 s lost (3.29 s > 3.28 s), every
     later frame received 0.3 s later (or earlier). Main put it all one wrap back."""
     keep = [k for k in range(1000) if not 236 <= k < 565]
-    samples, events = assemble(stream(keep, 565, shift_s, rate_known), cut)
+    samples, events = assemble(stream(keep, 565, shift_s, rate_known), RATE, cut)
     assert samples["n"].tolist() == keep  # 671 samples, the last at 9.99 s
     assert samples["ticks"].tolist() == [100 * k for k in keep]
     assert samples["present"].all()
@@ -86,7 +66,7 @@ def test_gap_of_two_and_a_half_wraps_with_a_delay_change(shift_s, rate_known, cu
     (1.5 s) is also a clock step: the first frame after the gap waits as an outlier, the
     next confirms it."""
     keep = list(range(500)) + list(range(2138, 2438))
-    samples, events = assemble(stream(keep, 2138, shift_s, rate_known), cut)
+    samples, events = assemble(stream(keep, 2138, shift_s, rate_known), RATE, cut)
     assert samples["n"].tolist() == keep
     assert samples["ticks"].tolist() == [100 * k for k in keep]
     assert len(kinds(events, EventKind.LATE)) == 0
@@ -112,14 +92,14 @@ def test_gap_without_receive_times_takes_the_shortest_step(rate_known, cut):
     step, 0.3236 s back (as on main), so its frames are late and counted, never a guess."""
     short = [k for k in range(600) if not 100 <= k < 400]  # 3.00 s gap
     frames = [RawFrame(float("nan"), f.can_id, f.data) for f in stream(short, 0, 0.0, rate_known)]
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, RATE, cut)
     assert samples["n"].tolist() == short
     assert samples["ticks"].tolist() == [100 * k for k in short]
     assert kinds(events, EventKind.SAMPLES_LOST)["value"].tolist() == [300]
 
     long = [k for k in range(800) if not 236 <= k < 565]
     frames = [RawFrame(float("nan"), f.can_id, f.data) for f in stream(long, 0, 0.0, rate_known)]
-    samples, events = assemble(frames, cut)
+    samples, events = assemble(frames, RATE, cut)
     assert len(kinds(events, EventKind.WRAP_GUESS)) == 0
     # 565 lands a wrap early (tick 56500 - 65536 = -9036), long closed: its frames are late
     # until the stream catches up; every frame after the gap is late or in a sample
