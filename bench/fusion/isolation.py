@@ -160,10 +160,9 @@ def carry_named(single: np.ndarray, cand: np.ndarray, carry: int) -> tuple[np.nd
     sets = (single >= 0) | ((single == -1) & cand)
     idx = np.where(sets, np.arange(len(single)), -1)
     np.maximum.accumulate(idx, out=idx)
+    # the last setting sample's verdict (a channel, or -1 where an alarm ended), else carry
     last = np.where(idx >= 0, single[np.maximum(idx, 0)], carry)
-    last = np.where(last < 0, -1, last)  # an ended alarm names nobody
     named = np.where(single == AMBIGUOUS, last, single)
-    named = np.where(named < 0, -1, named)
     return named, int(last[-1]) if len(last) else carry
 
 

@@ -96,9 +96,12 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
     # half way to firing: a curve may have started, and s has been moving by its k since;
     # the output's sigma says so until the detector decides (the state is not touched)
     half = 4.0 * e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and 2.0 * abs(e) > p[P_WDET_MIN]
-    # the step the two means imply, and when it began
-    age = _step_age(e1, e)
-    step = e1 / (1.0 - math.exp(-age)) if age > 0.0 else e1
+    # the step the two means imply, and when it began (only past half way: firing needs it too)
+    age, step = 0.0, e1
+    if half:
+        age = _step_age(e1, e)
+        if age > 0.0:
+            step = e1 / (1.0 - math.exp(-age))
     m[M_WPEND] = abs(step / hk) * abs(x[IV]) * age * tau if (half and hk != 0.0) else 0.0
     if big and bi >= m[M_WHOLD] and hk * p[P_KMAX] > abs(e):
         dk = step / hk
