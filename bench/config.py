@@ -84,6 +84,7 @@ class EstimatorSettings:
     curve_detect_min_mps2: float = 0.02  # and beyond this change of w (v^2/R)
     vibration_corr_s: float = 0.1  # correlation time of what the notch leaves of the vibration
     vibration_notch_radius: float = 0.9  # adaptive notch on w for the body's bounce (0: none)
+    drift_llr: float = 10.0  # log-likelihood lead that names a drifting channel early (0: off)
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
 
 
@@ -94,6 +95,7 @@ ZERO_ALLOWED = frozenset(
         "w_block_s",
         "bias_sigma_mps2",
         "vibration_notch_radius",
+        "drift_llr",
     }
 )
 """Estimator settings that may be 0 (every other one must be > 0)."""
@@ -242,6 +244,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "curve_detect_min_mps2": 100.0,
     "vibration_corr_s": 10.0,
     "vibration_notch_radius": 0.999,
+    "drift_llr": 1e6,
     "bias_sigma_mps2": 1.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as

@@ -51,9 +51,13 @@ def test_compare_with_a_plan_gives_validity_and_every_verdict_both_ways_in_80_co
     assert table["valid (device)"][1] == "0.00 %"  # no vote within tolerance any more
     assert float(table["valid (device)"][0].split()[0]) > 50.0
     # every check of the plan on one line, with its verdict before and after
-    for name in ("bench estimator at standstill", "bench estimator at cruise"):
-        before, after = table[name]
-        assert before.startswith("PASS") and after.startswith("FAIL"), (name, before, after)
+    before, after = table["bench estimator at standstill"]
+    assert before.startswith("PASS") and after.startswith("FAIL"), (before, after)
+    # on the move the drift copies (docs/ESTIMATOR.md) find ch1 at odds with the odometer
+    # and give the gradient from ch2 and ch3, which the wrong angle does not touch; at rest
+    # nothing tells ch1 from ch3 (above)
+    before, after = table["bench estimator at cruise"]
+    assert before.startswith("PASS") and after.startswith("PASS"), (before, after)
     assert table["no frame lost"] == ["PASS 0 frames", "PASS 0 frames"]  # not calibration
     assert table["plan level (expects pass)"] == ["PASS", "FAIL"]
     assert "before: recorded in run.mcap (scenario of plan level as built)" in out

@@ -80,6 +80,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_BIAS] = s.bias_sigma_mps2
     p[jl.P_NOTCH_RHO] = s.vibration_notch_radius
     p[jl.P_NOTCH_MU] = 0.01
+    p[jl.P_DRIFT_LLR] = s.drift_llr
     return p
 
 
@@ -95,10 +96,11 @@ def u_variance_factors(geo: Geometry, row_index: int = 0) -> np.ndarray:
     return out
 
 
-def exclusion_gains(geo: Geometry) -> np.ndarray:
+def exclusion_gains(geo: Geometry, row_index: int = 0) -> np.ndarray:
     """Per channel k, u's weight over the parity's (three channels): an error e on k moves
-    the residual by e p_k and u by e c_k, so a residual r means c_k / p_k r in u."""
-    cu = geo.pinv_array[7, 0]
+    the residual by e p_k and u by e c_k, so a residual r means c_k / p_k r in u.
+    ``row_index`` 1: the same for w."""
+    cu = geo.pinv_array[7, row_index]
     par = np.asarray(geo.parity)
     return np.where(np.abs(par) > 0.05, cu / np.where(par == 0, 1.0, par), 0.0)
 
@@ -121,6 +123,11 @@ class JointFilter:
         self.ru = u_variance_factors(geo)
         self.rw = u_variance_factors(geo, 1)
         self.excl_gain = exclusion_gains(geo)
+        self.excl_gain_w = exclusion_gains(geo, 1)
+        # the drift copies (joint_drift): state, covariance, bookkeeping per channel left out
+        self.bank_x = np.zeros((3, jl.NX))
+        self.bank_cov = np.zeros((3, jl.NX, jl.NX))
+        self.bank_m = np.zeros((3, jl.MB_SIZE))
         # compile or load the kernel now, when the pipeline is built (before acquisition),
         # not on the first live sample; an empty batch leaves the state as it is
         self.push(_EMPTY_F, _EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_I8, None)
@@ -156,6 +163,10 @@ class JointFilter:
             self.ru,
             self.rw,
             self.excl_gain,
+            self.excl_gain_w,
+            self.bank_x,
+            self.bank_cov,
+            self.bank_m,
             np.ascontiguousarray(fa, dtype=np.int64),
             np.ascontiguousarray(fw, dtype=np.float64),
             np.ascontiguousarray(fs, dtype=np.float64),

@@ -26,14 +26,14 @@ import sys
 import numpy as np
 from numba import njit
 
-from bench.fusion import joint_layout, joint_updates, joint_w
+from bench.fusion import joint_drift, joint_layout, joint_updates, joint_w
 from bench.fusion.joint_layout import (
     IA,
-    IB,
     IK,
     IL,
     IS,
     IV,
+    M_BANK,
     M_HAVE_V,
     M_HAVE_Z,
     M_LAST_B,
@@ -43,6 +43,7 @@ from bench.fusion.joint_layout import (
     M_NOISE2,
     M_NOISE_N,
     M_OK_SINCE,
+    M_OUT_SINCE,
     M_QUANT,
     M_RESLOW,
     M_ROUGH,
@@ -58,10 +59,12 @@ from bench.fusion.joint_layout import (
     M_USTILL,
     M_USTILL_N,
     M_WPEND,
+    M_WVAR,
     M_ZUPT_FROM,
     NX,
     P_BIAS,
     P_COAST,
+    P_DRIFT_LLR,
     P_G,
     P_GATE,
     P_K0,
@@ -72,13 +75,6 @@ from bench.fusion.joint_layout import (
     P_LSIG,
     P_NOISE_FLOOR,
     P_NOISE_TAU,
-    P_QA,
-    P_QB,
-    P_QK,
-    P_QK_BLIND,
-    P_QK_ROUGH,
-    P_QL,
-    P_QS,
     P_RECOVER,
     P_RES_LIMIT,
     P_RESET,
@@ -96,48 +92,9 @@ from bench.fusion.joint_layout import (
     P_ZGATE,
     P_ZHOLD,
 )
-from bench.fusion.joint_updates import _innov_var, _update, _update_motion
+from bench.fusion.joint_updates import _innov_var, _predict, _update, _update_motion
 from bench.fusion.joint_w import _w_block
 from bench.fusion.kernel_cache import drop_stale
-
-
-@njit(cache=True)
-def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
-    """x, P over dt seconds. EKF: s += k v dt is bilinear; F = I + dt (e_v e_a^T + k e_s e_v^T
-    + v e_s e_k^T), applied to P's rows then columns in place (row s before row v, which
-    it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
-    the vertical-curve detector cannot see a curve start: k's process noise per metre is
-    then the one that covers such jumps (P_QK_BLIND). ``rough`` (0..1): how much the body's
-    vibration drowns w. On a smooth ride w pins k at once, so k may walk freely (P_QK) and
-    the filter settles quickly; on a rough one w cannot, and a free k would only blur s:
-    k then walks slowly (P_QK_ROUGH, log-interpolated) and the curve detector, whose
-    pending decisions widen the output's sigma, follows the curves."""
-    v, k = x[IV], x[IK]
-    kdt, vdt = k * dt, v * dt
-    x[IV] = v + x[IA] * dt
-    x[IS] = x[IS] + k * v * dt
-    for j in range(NX):  # rows: P <- F P
-        cov[IS, j] = cov[IS, j] + kdt * cov[IV, j] + vdt * cov[IK, j]
-        cov[IV, j] = cov[IV, j] + dt * cov[IA, j]
-    for i in range(NX):  # columns: P <- P F^T
-        cov[i, IS] = cov[i, IS] + kdt * cov[i, IV] + vdt * cov[i, IK]
-        cov[i, IV] = cov[i, IV] + dt * cov[i, IA]
-    qa = p[P_QA]
-    cov[IV, IV] += qa * dt * dt * dt / 3.0
-    cov[IV, IA] += qa * dt * dt / 2.0
-    cov[IA, IV] += qa * dt * dt / 2.0
-    cov[IA, IA] += qa * dt
-    d = abs(v) * dt  # metres travelled: the gradient changes only with distance
-    if d > 0.0:
-        qs = p[P_QS]
-        qk = p[P_QK_BLIND] if blind else p[P_QK] * (p[P_QK_ROUGH] / p[P_QK]) ** rough
-        cov[IS, IS] += qs * d + qk * d * d * d / 3.0
-        cov[IS, IK] += qk * d * d / 2.0
-        cov[IK, IS] += qk * d * d / 2.0
-        cov[IK, IK] += qk * d
-    if p[P_LSIG] > 0.0:
-        cov[IL, IL] += p[P_QL] * dt
-    cov[IB, IB] += p[P_QB] * dt
 
 
 @njit(cache=True)
@@ -165,6 +122,10 @@ def run(  # type: ignore[no-untyped-def]
     ru_of_mask,
     rw_of_mask,
     excl_gain,
+    excl_gain_w,
+    xb,
+    cb,
+    mb,
     f_anchor,
     f_when,
     f_speed,
@@ -196,6 +157,8 @@ def run(  # type: ignore[no-untyped-def]
             gain_max = abs(excl_gain[q])
     h = np.zeros(NX)
     ph = np.zeros(NX)
+    off = np.zeros(3)  # the drift copies' scratch: offsets, R per copy
+    r3 = np.zeros(3)
     j = 0
     for i in range(n):
         bi = b[i]
@@ -204,9 +167,16 @@ def run(  # type: ignore[no-untyped-def]
             m[M_LAST_B] = bi
         dt = bi - m[M_LAST_B]
         if dt > 0.0:
-            # without w nothing pins k: it walks as on the roughest ride
-            rough = m[M_ROUGH] if p[P_USE_W] != 0.0 else 1.0
-            _predict(x, cov, dt, p, not (bi - m[M_LAST_FRAME] <= p[P_COAST]), rough)
+            # without w nothing pins k: it walks as on the roughest ride (so too while the
+            # channels disagree and w is not used: a drift would otherwise bend s through k)
+            w_held = (
+                residual[i] == residual[i] and mask[i] == 7 and (abs(m[M_RESLOW]) > p[P_WRES_MAX])
+            )
+            rough = m[M_ROUGH] if (p[P_USE_W] != 0.0 and not w_held) else 1.0
+            blind = not (bi - m[M_LAST_FRAME] <= p[P_COAST])
+            _predict(x, cov, dt, p, blind, rough)
+            if m[M_BANK] != 0.0:  # the copies use w: k walks as the ride allows
+                joint_drift.predict(xb, cb, dt, p, blind, m[M_ROUGH] if p[P_USE_W] != 0.0 else 1.0)
         m[M_LAST_B] = bi
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]
@@ -243,6 +213,7 @@ def run(  # type: ignore[no-untyped-def]
             rv = m[M_RV] if m[M_RV] > floor else floor
             if f_restart[j] or m[M_HAVE_V] == 0.0:
                 _restart_speed(x, cov, z, rv)
+                m[M_BANK] = 0.0
                 m[M_HAVE_V] = 1.0
                 m[M_STREAK_T0] = math.nan
                 m[M_LAST_FRAME] = when
@@ -275,6 +246,11 @@ def run(  # type: ignore[no-untyped-def]
             reach = math.sqrt(p[P_GATE] * s_gate) + quant
             accepted = abs(nu) <= reach
             if accepted:
+                if m[M_BANK] != 0.0:  # before the filter's update, which reuses ph
+                    for k in range(3):
+                        lag_k = 0.0 if h[IL] != 0.0 else xb[k, IL]
+                        off[k] = -(delta - back + lag_k) * a_old
+                    joint_drift.update_scalar(xb, cb, mb, h, ph, z, off, rv, m[M_SUSPECT] != 0.0)
                 if m[M_SUSPECT] != 0.0:
                     _update_motion(x, cov, h, nu, rv, ph)
                 else:
@@ -312,11 +288,13 @@ def run(  # type: ignore[no-untyped-def]
                                 cov[IS, IS] = slope * slope
                             cov[IK, IK] += p[P_KJUMP] * p[P_KJUMP]  # a curve's start or end
                             _restart_speed(x, cov, z, rv)
+                            m[M_BANK] = 0.0
                             m[M_STREAK_T0] = math.nan
                             m[M_LAST_FRAME] = when
                         elif span >= 3.0 * p[P_RESET]:
                             # slipping for this long: take the odometer's speed, keep s
                             _restart_speed(x, cov, z, rv)
+                            m[M_BANK] = 0.0
                             m[M_STREAK_T0] = math.nan
                             m[M_LAST_FRAME] = when
             j += 1
@@ -325,9 +303,24 @@ def run(  # type: ignore[no-untyped-def]
             # an exclusion by the residual or a stuck code: the channel's error grew until
             # now and its slow part went into s. Its size is the residual's slow mean over
             # the channel's parity weight; its share of u, that times the u weight
-            leak = m[M_RESLOW] * excl_gain[latched[i] - 1]
-            x[IS] -= leak
-            cov[IS, IS] += leak * leak
+            if m[M_BANK] != 0.0:
+                # the copy that ran without this channel since the residual grew is what
+                # the filter would have been had it been excluded then
+                joint_drift.adopt(x, cov, m, xb, cb, latched[i] - 1)
+            else:
+                leak = m[M_RESLOW] * excl_gain[latched[i] - 1]
+                x[IS] -= leak
+                cov[IS, IS] += leak * leak
+        if mask[i] != 7:
+            if m[M_OUT_SINCE] != m[M_OUT_SINCE]:
+                m[M_OUT_SINCE] = bi
+        elif m[M_OUT_SINCE] == m[M_OUT_SINCE]:
+            # a channel readmitted after longer than the slow mean's memory: the isolation
+            # found its residual healthy for its recovery time, and what the slow mean still
+            # holds is the fault's tail, not an error of the three channels now in
+            if bi - m[M_OUT_SINCE] >= p[P_RESLOW_TAU]:
+                m[M_RESLOW] = 0.0
+            m[M_OUT_SINCE] = math.nan
         if r_i == r_i and dt > 0.0:
             m[M_RESLOW] += dt / p[P_RESLOW_TAU] * (r_i - m[M_RESLOW])
         # -- specific force along the track: u = a + s
@@ -335,9 +328,19 @@ def run(  # type: ignore[no-untyped-def]
         have_u = ui == ui
         # the parity residual speaks of the channels in u and w only while all three are
         all3 = r_i == r_i and mask[i] == 7
+        # -- which channel drifts (joint_drift): copies while the residual's slow mean
+        # stands out, until it falls back or the isolation excludes a channel
+        if all3 and p[P_DRIFT_LLR] > 0.0 and m[M_HAVE_V] != 0.0:
+            slow_now = abs(m[M_RESLOW])
+            if m[M_BANK] == 0.0 and slow_now > p[P_WRES_MAX]:
+                joint_drift.start(x, cov, m, xb, cb, mb, excl_gain)
+            elif m[M_BANK] != 0.0 and slow_now < 0.5 * p[P_WRES_MAX]:
+                m[M_BANK] = 0.0
+        bank = m[M_BANK] != 0.0 and all3 and have_u
         if have_u:
             noise2 = m[M_NOISE2] if m[M_NOISE2] > p[P_NOISE_FLOOR] else p[P_NOISE_FLOOR]
             r_u = noise2 * ru_of_mask[mask[i]]
+            stepped = False
             for q in range(NX):
                 h[q] = 0.0
             h[IA] = 1.0
@@ -350,7 +353,17 @@ def run(  # type: ignore[no-untyped-def]
                 if bi - m[M_STEP_T] > p[P_COAST]:  # a new step, not the same one again
                     m[M_STEP_A0] = x[IA]  # before this step (not a sample into it)
                 m[M_STEP_T] = bi
+                stepped = True
             _update(x, cov, h, nu_u, r_u, ph)
+            if bank:  # each copy on the two channels without its own
+                for k in range(3):
+                    r3[k] = noise2 * ru_of_mask[7 ^ (1 << k)]
+                joint_drift.update_u(xb, cb, h, ph, ui, residual[i], excl_gain, r3, stepped)
+                for k in range(3):
+                    r3[k] = noise2 * rw_of_mask[7 ^ (1 << k)]
+                joint_drift.add_w(
+                    m, mb, p, h, ph, xb, cb, bi, w[i], residual[i], excl_gain_w, r3, m[M_WVAR]
+                )
             # w only while the channels agree: a drifting channel bends w as a curve would
             if p[P_USE_W] != 0.0 and not (all3 and abs(m[M_RESLOW]) > p[P_WRES_MAX]):
                 _w_block(x, cov, m, p, h, ph, bi, w[i], noise2 * rw_of_mask[mask[i]])
@@ -381,6 +394,13 @@ def run(  # type: ignore[no-untyped-def]
                         h[q] = 0.0
                     h[IV] = 1.0
                     _update(x, cov, h, -x[IV], p[P_RV], ph)
+                    if bank:  # the copies at rest: v = 0 and a = 0 score them
+                        off[0] = off[1] = off[2] = 0.0
+                        joint_drift.update_scalar(xb, cb, mb, h, ph, 0.0, off, p[P_RV], False)
+                        for q in range(NX):
+                            h[q] = 0.0
+                        h[IA] = 1.0
+                        joint_drift.update_scalar(xb, cb, mb, h, ph, 0.0, off, p[P_RZ], False)
                     m[M_HAVE_V] = 1.0
                     # at rest nothing tells k (v^2/R = 0, no distance): it relaxes to its
                     # prior (no curve) rather than keep what a rough ride left in it, so the
@@ -405,21 +425,23 @@ def run(  # type: ignore[no-untyped-def]
         x[IK] = kmax if x[IK] > kmax else (-kmax if x[IK] < -kmax else x[IK])
         x[IL] = 0.0 if x[IL] < 0.0 else (1.0 if x[IL] > 1.0 else x[IL])
         # -- output: gradient = 1000 tan(asin(s/g)) and its 1-sigma
-        s_est = x[IS]
+        lead = joint_drift.leader(m, mb, p) if all3 else -1
+        s_est = x[IS] if lead < 0 else xb[lead, IS]
+        var_s = cov[IS, IS] if lead < 0 else cb[lead, IS, IS]
         c2 = g * g - s_est * s_est
-        if c2 > 0.0 and cov[IS, IS] >= 0.0:
+        if c2 > 0.0 and var_s >= 0.0:
             c = math.sqrt(c2)
             grad = 1000.0 * s_est / c
             # a slow parity residual means one channel is off by residual / parity weight
             # and u by that times its u weight; which channel is not known yet, so the
             # largest share counts until the isolation settles it
             # (once it stands out of its own noise: 4 sigma of a moving mean of white noise)
-            slow = abs(m[M_RESLOW]) if all3 else 0.0
+            slow = abs(m[M_RESLOW]) if (all3 and lead < 0) else 0.0
             if dt > 0.0 and slow * slow <= 16.0 * m[M_NOISE2] * dt / (2.0 * p[P_RESLOW_TAU]):
                 slow = 0.0
             slow *= gain_max
             pend = m[M_WPEND]
-            var = cov[IS, IS] + slow * slow + p[P_BIAS] * p[P_BIAS] + pend * pend
+            var = var_s + slow * slow + p[P_BIAS] * p[P_BIAS] + pend * pend
             sigma = 1000.0 * g * g / (c2 * c) * math.sqrt(var)
         else:
             grad = math.nan
@@ -433,4 +455,4 @@ def run(  # type: ignore[no-untyped-def]
 
 # the loop freezes joint_w's, joint_updates' and joint_layout's code and constants into its
 # own machine code: numba's cache must be dropped when any of them changed (kernel_cache)
-drop_stale(run, (sys.modules[__name__], joint_w, joint_updates, joint_layout))
+drop_stale(run, (sys.modules[__name__], joint_w, joint_updates, joint_drift, joint_layout))

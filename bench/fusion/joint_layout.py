@@ -68,7 +68,19 @@ M_WPEND = 36  # s error a curve the detector is still judging may have caused, m
 M_NOTCH_IN = 37  # moving power of the block innovations into the notch
 M_NOTCH_OUT = 38  # ... and of what it leaves of them
 M_ROUGH = 39  # 0..1: how much the body's vibration drowns w (block spread, see _predict)
-M_SIZE = 40
+M_HALF_T0 = 40  # board time the curve detector passed half its threshold (NaN: not)
+M_JUMP_DK = 41  # k step the last block's gate applied (the next block may show more of it)
+M_OUT_SINCE = 42  # board time the channel mask last left 7 (NaN: all three in)
+M_BANK = 43  # 1 while the drift copies run (bench.fusion.joint_drift)
+M_BANK_WT0 = 44  # board time of their current w block's first sample (NaN: none)
+M_SIZE = 45
+
+# per drift copy (bench.fusion.joint_drift), rows of its (3, MB_SIZE) array
+MB_LL = 0  # log-likelihood of its odometer, standstill and w innovations since the start
+MB_WSUM = 1  # sum of its w over the current block
+MB_WCOUNT = 2  # samples in it
+MB_WFLOOR = 3  # sum of the white-noise variance factors of its block's samples
+MB_SIZE = 4
 
 # -- parameters (float64 array ``p``) ------------------------------------------------------
 P_QA = 0  # acceleration random walk, (m/s^2)^2/s
@@ -123,7 +135,8 @@ P_NOTCH_RHO = 48  # pole radius of the adaptive notch on the block innovations (
 P_NOTCH_MU = 49  # its normalised adaptation step
 P_QK_ROUGH = 50  # k's random walk per metre on a rough ride
 P_WROUGH = 51  # m/s^2: block spread of w at which a ride counts as rough
-P_SIZE = 52
+P_DRIFT_LLR = 52  # a drift copy is trusted once it leads the others by this log-likelihood
+P_SIZE = 53
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,6 +159,9 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_RV] = p[P_RV0]
     m[M_QUANT] = math.inf
     m[M_WT0] = math.nan
+    m[M_HALF_T0] = math.nan
+    m[M_OUT_SINCE] = math.nan
+    m[M_BANK_WT0] = math.nan
     m[M_WVAR] = 0.0
     m[M_STEP_T] = -math.inf
     return x, cov, m

@@ -1,14 +1,28 @@
-"""The joint filter's scalar measurement updates, compiled by numba and shared by every
-measurement of :mod:`bench.fusion.joint_kernel` and :mod:`bench.fusion.joint_w`: P h, the
-innovation variance and the gain (P -= K (P h)^T, symmetrised) in one place and one order."""
+"""The joint filter's time update and scalar measurement updates, compiled by numba and
+shared by :mod:`bench.fusion.joint_kernel`, :mod:`bench.fusion.joint_w` and
+:mod:`bench.fusion.joint_drift`: the process model, P h, the innovation variance and the gain
+(P -= K (P h)^T, symmetrised) in one place and one order."""
 
 from __future__ import annotations
 
 from numba import njit
 
 from bench.fusion.joint_layout import (
+    IA,
+    IB,
+    IK,
+    IL,
+    IS,
     IV,
     NX,
+    P_LSIG,
+    P_QA,
+    P_QB,
+    P_QK,
+    P_QK_BLIND,
+    P_QK_ROUGH,
+    P_QL,
+    P_QS,
 )
 
 
@@ -71,3 +85,42 @@ def _innov_var(cov, h, r):  # type: ignore[no-untyped-def]
             acc += cov[i, j] * h[j]
         s += h[i] * acc
     return s
+
+
+@njit(cache=True)
+def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
+    """x, P over dt seconds. EKF: s += k v dt is bilinear; F = I + dt (e_v e_a^T + k e_s e_v^T
+    + v e_s e_k^T), applied to P's rows then columns in place (row s before row v, which
+    it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
+    the vertical-curve detector cannot see a curve start: k's process noise per metre is
+    then the one that covers such jumps (P_QK_BLIND). ``rough`` (0..1): how much the body's
+    vibration drowns w. On a smooth ride w pins k at once, so k may walk freely (P_QK) and
+    the filter settles quickly; on a rough one w cannot, and a free k would only blur s:
+    k then walks slowly (P_QK_ROUGH, log-interpolated) and the curve detector, whose
+    pending decisions widen the output's sigma, follows the curves."""
+    v, k = x[IV], x[IK]
+    kdt, vdt = k * dt, v * dt
+    x[IV] = v + x[IA] * dt
+    x[IS] = x[IS] + k * v * dt
+    for j in range(NX):  # rows: P <- F P
+        cov[IS, j] = cov[IS, j] + kdt * cov[IV, j] + vdt * cov[IK, j]
+        cov[IV, j] = cov[IV, j] + dt * cov[IA, j]
+    for i in range(NX):  # columns: P <- P F^T
+        cov[i, IS] = cov[i, IS] + kdt * cov[i, IV] + vdt * cov[i, IK]
+        cov[i, IV] = cov[i, IV] + dt * cov[i, IA]
+    qa = p[P_QA]
+    cov[IV, IV] += qa * dt * dt * dt / 3.0
+    cov[IV, IA] += qa * dt * dt / 2.0
+    cov[IA, IV] += qa * dt * dt / 2.0
+    cov[IA, IA] += qa * dt
+    d = abs(v) * dt  # metres travelled: the gradient changes only with distance
+    if d > 0.0:
+        qs = p[P_QS]
+        qk = p[P_QK_BLIND] if blind else p[P_QK] * (p[P_QK_ROUGH] / p[P_QK]) ** rough
+        cov[IS, IS] += qs * d + qk * d * d * d / 3.0
+        cov[IS, IK] += qk * d * d / 2.0
+        cov[IK, IS] += qk * d * d / 2.0
+        cov[IK, IK] += qk * d
+    if p[P_LSIG] > 0.0:
+        cov[IL, IL] += p[P_QL] * dt
+    cov[IB, IB] += p[P_QB] * dt

@@ -18,6 +18,8 @@ from bench.fusion.joint_layout import (
     IK,
     IS,
     IV,
+    M_HALF_T0,
+    M_JUMP_DK,
     M_NOTCH_IN,
     M_NOTCH_OUT,
     M_NOTCH_POW,
@@ -100,6 +102,13 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
     age, step = 0.0, e1
     if half:
         age = _step_age(e1, e)
+        # the step began before half way was passed, by the age the means gave then; later
+        # it cannot be older than that (a mean falling back, as the updates take the step
+        # in, would read as a step from long ago)
+        if m[M_HALF_T0] != m[M_HALF_T0]:
+            m[M_HALF_T0] = bi - age * tau
+        since = (bi - m[M_HALF_T0]) / tau
+        age = since if age > since else age
         if age > 0.0:
             step = e1 / (1.0 - math.exp(-age))
     m[M_WPEND] = abs(step / hk) * abs(x[IV]) * age * tau if (half and hk != 0.0) else 0.0
@@ -118,8 +127,11 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
         m[M_WE] = 0.0
         m[M_WE1] = 0.0
         m[M_WPEND] = 0.0
+        m[M_HALF_T0] = math.nan
         m[M_WHOLD] = bi + 2.0 * tau
     elif not big:
+        if not half:
+            m[M_HALF_T0] = math.nan
         # learnt from what is not a curve: a curve under the threshold (its end, after the
         # start fired) must not widen the spread the next one is judged by
         e2 = e * e
@@ -210,6 +222,16 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         r = floor + (r - floor) * (p[P_WCORR] / span)
     s_nu = hph + r
     _curve_detector(x, cov, m, p, nu, h[IK], bi, span)
+    carry = m[M_JUMP_DK]
+    m[M_JUMP_DK] = 0.0
+    if carry != 0.0:
+        # the last block straddled a curve's start: its mean showed only part of the step,
+        # and this block, wholly past it, may show the rest (as much again, at most)
+        ds = carry * x[IV] * span
+        cov[IK, IK] += carry * carry
+        cov[IK, IS] += carry * ds
+        cov[IS, IK] += carry * ds
+        cov[IS, IS] += ds * ds
     if nu * nu > p[P_WGATE] * s_nu and h[IK] * p[P_KMAX] > math.sqrt(p[P_WGATE] * s_nu):
         # a vertical curve starts or ends: k jumps, which its random walk per metre cannot
         # follow; the block tells by how much (at most the sharpest curve a line has), when
@@ -223,6 +245,7 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         cov[IK, IS] += dk * ds
         cov[IS, IK] += dk * ds
         cov[IS, IS] += ds * ds
+        m[M_JUMP_DK] = dk
     _update(x, cov, h, nu, r, ph)
     lim = p[P_WGATE] * s_nu
     e2 = lim if e2 > lim else (0.0 if e2 < 0.0 else e2)
