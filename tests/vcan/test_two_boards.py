@@ -40,6 +40,7 @@ sample_rate_hz = 100
 base_id = {base}
 speed_ref = {speed_ref}
 initial_speed_mps = 4.0
+vertical_curve_accel = true  # the car feels the curve at 5 m (the estimator reads curves in w)
 [[train]]
 duration_s = 2.0
 accel_mps2 = 0.3
