@@ -86,6 +86,10 @@ class EstimatorSettings:
     vibration_notch_radius: float = 0.9  # adaptive notch on w for the body's bounce (0: none)
     drift_llr: float = 10.0  # log-likelihood lead that names a drifting channel early (0: off)
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
+    body_velocity_tau_s: float = (
+        0.2  # correlation time of the car body's vertical velocity (0: off)
+    )
+    body_velocity_mismatch: float = 0.1  # share of the w blocks' vibration left in their R
 
 
 ZERO_ALLOWED = frozenset(
@@ -96,6 +100,7 @@ ZERO_ALLOWED = frozenset(
         "bias_sigma_mps2",
         "vibration_notch_radius",
         "drift_llr",
+        "body_velocity_tau_s",
     }
 )
 """Estimator settings that may be 0 (every other one must be > 0)."""
@@ -246,6 +251,8 @@ ESTIMATOR_MAX: dict[str, float] = {
     "vibration_notch_radius": 0.999,
     "drift_llr": 1e6,
     "bias_sigma_mps2": 1.0,
+    "body_velocity_tau_s": 10.0,
+    "body_velocity_mismatch": 1.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as
 samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""

@@ -78,6 +78,8 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_USTILL_TAU] = 2.0
     p[jl.P_WRES_MAX] = 0.1 * s.residual_limit_mps2
     p[jl.P_BIAS] = s.bias_sigma_mps2
+    p[jl.P_ZTAU] = s.body_velocity_tau_s
+    p[jl.P_ZMIS] = s.body_velocity_mismatch
     p[jl.P_NOTCH_RHO] = s.vibration_notch_radius
     p[jl.P_NOTCH_MU] = 0.01
     p[jl.P_DRIFT_LLR] = s.drift_llr

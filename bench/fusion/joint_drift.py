@@ -69,9 +69,9 @@ def start(x, cov, m, xb, cb, mb, gain_u):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def predict(xb, cb, dt, p, blind, rough):  # type: ignore[no-untyped-def]
+def predict(xb, cb, dt, p, blind, rough, zvar):  # type: ignore[no-untyped-def]
     for k in range(3):
-        _predict(xb[k], cb[k], dt, p, blind, rough)
+        _predict(xb[k], cb[k], dt, p, blind, rough, zvar)
 
 
 @njit(cache=True)

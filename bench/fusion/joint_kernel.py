@@ -6,7 +6,7 @@ carried between calls in small float64 arrays, so the results are the same bits 
 stream is cut: a Kalman filter is a recursion, and a recursion run by one machine code in
 one order does not depend on where the calls start and stop. No fastmath: IEEE semantics.
 
-State x: the slots of :mod:`bench.fusion.joint_layout` (v, a, s, k, l, b; docs/ESTIMATOR.md).
+State x: the slots of :mod:`bench.fusion.joint_layout` (v, a, s, k, l, b, z, zc; docs/ESTIMATOR.md).
 
 Process over dt with d = |v| dt: v += a dt (+ white-jerk terms), s += k v dt; s and k
 take process noise only per metre travelled, so a train at rest keeps its gradient.
@@ -61,6 +61,7 @@ from bench.fusion.joint_layout import (
     M_WPEND,
     M_WVAR,
     M_ZUPT_FROM,
+    M_ZVAR,
     NX,
     P_BIAS,
     P_COAST,
@@ -174,9 +175,10 @@ def run(  # type: ignore[no-untyped-def]
             )
             rough = m[M_ROUGH] if (p[P_USE_W] != 0.0 and not w_held) else 1.0
             blind = not (bi - m[M_LAST_FRAME] <= p[P_COAST])
-            _predict(x, cov, dt, p, blind, rough)
+            _predict(x, cov, dt, p, blind, rough, m[M_ZVAR])
             if m[M_BANK] != 0.0:  # the copies use w: k walks as the ride allows
-                joint_drift.predict(xb, cb, dt, p, blind, m[M_ROUGH] if p[P_USE_W] != 0.0 else 1.0)
+                rb = m[M_ROUGH] if p[P_USE_W] != 0.0 else 1.0
+                joint_drift.predict(xb, cb, dt, p, blind, rb, m[M_ZVAR])
         m[M_LAST_B] = bi
         # -- channel noise from the parity residual (rigid-body motion does not show in it)
         r_i = residual[i]

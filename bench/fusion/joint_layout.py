@@ -15,6 +15,10 @@ s     g sin(alpha): gravity along the track, m/s^2 (random walk in distance)
 k     ds/dx, the gradient's rate per metre (vertical curves; random walk in distance)
 l     odometer latency beyond the clock alignment, s (constant unless enabled)
 b     bias of w, the specific force normal to the track, m/s^2 (slow random walk)
+z     the car body's vertical velocity, m/s (Gauss-Markov: its vibration, whose
+      integral a suspension keeps bounded)
+zc    z at the end of the previous w block (a clone: a block's mean of w holds
+      (z - zc) / T of vibration)
 ====  ========================================================================
 """
 
@@ -24,8 +28,8 @@ import math
 
 import numpy as np
 
-NX = 6
-IV, IA, IS, IK, IL, IB = 0, 1, 2, 3, 4, 5
+NX = 8
+IV, IA, IS, IK, IL, IB, IZ, IZC = 0, 1, 2, 3, 4, 5, 6, 7
 
 # -- misc state slots (float64 array ``m``) ------------------------------------------------
 M_STARTED = 0  # 1 after the first sample
@@ -73,7 +77,9 @@ M_JUMP_DK = 41  # k step the last block's gate applied (the next block may show 
 M_OUT_SINCE = 42  # board time the channel mask last left 7 (NaN: all three in)
 M_BANK = 43  # 1 while the drift copies run (bench.fusion.joint_drift)
 M_BANK_WT0 = 44  # board time of their current w block's first sample (NaN: none)
-M_SIZE = 45
+M_ZVAR = 45  # stationary variance of z, from the learnt block variance, (m/s)^2
+M_ZCLONE_T = 46  # board time zc was cloned (NaN: no clone)
+M_SIZE = 47
 
 # per drift copy (bench.fusion.joint_drift), rows of its (3, MB_SIZE) array
 MB_LL = 0  # log-likelihood of its odometer, standstill and w innovations since the start
@@ -136,7 +142,9 @@ P_NOTCH_MU = 49  # its normalised adaptation step
 P_QK_ROUGH = 50  # k's random walk per metre on a rough ride
 P_WROUGH = 51  # m/s^2: block spread of w at which a ride counts as rough
 P_DRIFT_LLR = 52  # a drift copy is trusted once it leads the others by this log-likelihood
-P_SIZE = 53
+P_ZTAU = 53  # s, correlation time of the body's vertical velocity (0: no z states)
+P_ZMIS = 54  # share of the learnt block variance the z model leaves in R
+P_SIZE = 55
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -162,6 +170,7 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_HALF_T0] = math.nan
     m[M_OUT_SINCE] = math.nan
     m[M_BANK_WT0] = math.nan
+    m[M_ZCLONE_T] = math.nan
     m[M_WVAR] = 0.0
     m[M_STEP_T] = -math.inf
     return x, cov, m

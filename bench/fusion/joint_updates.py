@@ -5,6 +5,8 @@ shared by :mod:`bench.fusion.joint_kernel`, :mod:`bench.fusion.joint_w` and
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
 from bench.fusion.joint_layout import (
@@ -14,6 +16,7 @@ from bench.fusion.joint_layout import (
     IL,
     IS,
     IV,
+    IZ,
     NX,
     P_LSIG,
     P_QA,
@@ -23,6 +26,7 @@ from bench.fusion.joint_layout import (
     P_QK_ROUGH,
     P_QL,
     P_QS,
+    P_ZTAU,
 )
 
 
@@ -88,7 +92,7 @@ def _innov_var(cov, h, r):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
+def _predict(x, cov, dt, p, blind, rough, zvar):  # type: ignore[no-untyped-def]
     """x, P over dt seconds. EKF: s += k v dt is bilinear; F = I + dt (e_v e_a^T + k e_s e_v^T
     + v e_s e_k^T), applied to P's rows then columns in place (row s before row v, which
     it reads; likewise the columns). ``blind``: no odometer frame is being accepted, so
@@ -124,3 +128,12 @@ def _predict(x, cov, dt, p, blind, rough):  # type: ignore[no-untyped-def]
     if p[P_LSIG] > 0.0:
         cov[IL, IL] += p[P_QL] * dt
     cov[IB, IB] += p[P_QB] * dt
+    if p[P_ZTAU] > 0.0:
+        # the body's vertical velocity: Gauss-Markov of stationary variance zvar
+        e = math.exp(-dt / p[P_ZTAU])
+        x[IZ] *= e
+        for j in range(NX):
+            cov[IZ, j] *= e
+        for i in range(NX):
+            cov[i, IZ] *= e
+        cov[IZ, IZ] += zvar * (1.0 - e * e)

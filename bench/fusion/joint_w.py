@@ -18,6 +18,8 @@ from bench.fusion.joint_layout import (
     IK,
     IS,
     IV,
+    IZ,
+    IZC,
     M_HALF_T0,
     M_JUMP_DK,
     M_NOTCH_IN,
@@ -37,6 +39,8 @@ from bench.fusion.joint_layout import (
     M_WSUM,
     M_WT0,
     M_WVAR,
+    M_ZCLONE_T,
+    M_ZVAR,
     NX,
     P_G,
     P_KMAX,
@@ -51,6 +55,8 @@ from bench.fusion.joint_layout import (
     P_WGATE,
     P_WROUGH,
     P_WVAR_TAU,
+    P_ZMIS,
+    P_ZTAU,
 )
 from bench.fusion.joint_updates import _innov_var, _update
 
@@ -171,19 +177,37 @@ def _notch(m, p, nu):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def _clone_z(x, cov, m, bi):  # type: ignore[no-untyped-def]
+    """zc = z, with z's covariance: the next block's vibration is (z - zc) / T."""
+    x[IZC] = x[IZ]
+    for j in range(NX):
+        cov[IZC, j] = cov[IZ, j]
+    for i in range(NX):
+        cov[i, IZC] = cov[i, IZ]
+    cov[IZC, IZC] = cov[IZ, IZ]
+    m[M_ZCLONE_T] = bi
+
+
+@njit(cache=True)
 def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-def]
     """Add sample w to the current block; at the block's end apply its mean.
 
-    h(x) = c + v^2 k / c + b with c = sqrt(g^2 - s^2): the normal specific force on a
-    vertical curve (1/R = d alpha/dx, k = ds/dx = c / R). The block mean's noise is the car
-    body's vertical vibration more than the sensors' white noise; its variance is learnt
-    from the block innovations (floored at the white noise's share), so a rough ride widens
-    it instead of bending k."""
+    h(x) = c + v^2 k / c + b + (z - zc) / T with c = sqrt(g^2 - s^2): the normal specific
+    force on a vertical curve (1/R = d alpha/dx, k = ds/dx = c / R) plus the car body's
+    vertical vibration over the block, the change of its vertical velocity z. A suspension
+    keeps z bounded, so the vibration's mean over a second is far smaller than a second of
+    independent block errors would be, while a curve's v^2/R lasts: that is what lets w
+    pin k on a rough ride. z's stationary variance comes from the blocks' learnt variance
+    (vibration, floored at the sensors' white noise). Without z states (P_ZTAU = 0) the
+    vibration is block noise, correlated over P_WCORR."""
+    ztau = p[P_ZTAU]
     if m[M_WT0] != m[M_WT0]:
         m[M_WT0] = bi
         m[M_WSUM] = 0.0
         m[M_WCOUNT] = 0.0
         m[M_WFLOOR] = 0.0
+        if ztau > 0.0 and m[M_ZCLONE_T] != m[M_ZCLONE_T]:
+            _clone_z(x, cov, m, bi)
     m[M_WSUM] += wi
     m[M_WCOUNT] += 1.0
     m[M_WFLOOR] += r_white
@@ -192,15 +216,26 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     cnt = m[M_WCOUNT]
     mean = m[M_WSUM] / cnt
     floor = m[M_WFLOOR] / (cnt * cnt)
+    # the block's length as its samples cover it, and the time since z was cloned: equal
+    # when the clone was taken at the previous block's end
+    step_b = (bi - m[M_WT0]) / (cnt - 1.0) if cnt > 1.0 else p[P_WBLOCK]
+    t_z = bi - m[M_ZCLONE_T]
+    use_z = ztau > 0.0 and abs(t_z - cnt * step_b) <= 0.5 * step_b
     m[M_WT0] = math.nan
+    if ztau > 0.0:
+        m[M_ZCLONE_T] = math.nan
     if cov[IS, IS] > W_SIGMA_S_MAX * W_SIGMA_S_MAX:
         # s not known yet (a start in motion): c = sqrt(g^2 - s^2) at a guessed s would put
         # the guess's cos error into b for good; w waits until u and the odometer tell s
+        if ztau > 0.0:
+            _clone_z(x, cov, m, bi)
         return
     g = p[P_G]
     v, s, k = x[IV], x[IS], x[IK]
     c2 = g * g - s * s
     if c2 <= 0.0:
+        if ztau > 0.0:
+            _clone_z(x, cov, m, bi)
         return
     c = math.sqrt(c2)
     for q in range(NX):
@@ -246,7 +281,15 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         cov[IS, IK] += dk * ds
         cov[IS, IS] += ds * ds
         m[M_JUMP_DK] = dk
-    _update(x, cov, h, nu, r, ph)
+    if use_z:
+        # the vibration is z's change over the block; what the Gauss-Markov model misses of
+        # it stays in R
+        h[IZ] = 1.0 / t_z
+        h[IZC] = -1.0 / t_z
+        wv = m[M_WVAR] - floor if m[M_WVAR] > floor else 0.0
+        _update(x, cov, h, nu - (x[IZ] - x[IZC]) / t_z, floor + p[P_ZMIS] * wv, ph)
+    else:
+        _update(x, cov, h, nu, r, ph)
     lim = p[P_WGATE] * s_nu
     e2 = lim if e2 > lim else (0.0 if e2 < 0.0 else e2)
     m[M_WVAR] += (e2 - m[M_WVAR]) / p[P_WVAR_TAU]
@@ -254,3 +297,10 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     # noise, is smooth; a few hundredths of m/s^2 hide the start of a curve)
     rough = math.sqrt(m[M_WVAR]) / p[P_WROUGH] if m[M_WVAR] > 0.0 else 0.0
     m[M_ROUGH] = 1.0 if rough > 1.0 else rough
+    if ztau > 0.0:
+        # z's stationary variance from the block variance it explains: a block mean of
+        # Gauss-Markov vibration has variance 2 zvar (1 - exp(-T / tau)) / T^2
+        wv = m[M_WVAR] - floor if m[M_WVAR] > floor else 0.0
+        tb = cnt * step_b
+        m[M_ZVAR] = wv * tb * tb / (2.0 * (1.0 - math.exp(-tb / ztau)))
+        _clone_z(x, cov, m, bi)
