@@ -5,10 +5,13 @@ emulator's truth: more of the run given, no more of it wrong, the sigma still ho
 from __future__ import annotations
 
 import dataclasses
+import re
+from pathlib import Path
 
 import pytest
 
 import benchmarks.accuracy as accuracy
+from benchmarks.common import ROOT
 
 
 def _figures(monkeypatch: pytest.MonkeyPatch, tau: float) -> dict[str, float | None]:
@@ -34,3 +37,23 @@ def test_a_bounded_body_velocity_lets_w_give_more_of_a_rough_ride(
     assert with_z["wrong"] <= 0.25  # > 1 permil wrong, % of the run (target 0.5)
     assert with_z["cover"] >= 97.0  # within 2 sigma, % of what is given
     assert with_z["rms"] <= 0.2
+
+
+def test_on_the_bounce_alone_a_curve_start_is_never_given_confidently_wrong(
+    tmp_path: Path,
+) -> None:
+    """The same run with the vibration issue 15 describes (the 2.5 Hz bounce, no broadband):
+    the curve detector's first guess of k is often 50 % off there, and the age it infers
+    for the step is uncertain too; s's variance says so, so nothing > 1 permil wrong is
+    given (it was 0.39 % of the run, up to 2.1 permil, before the age's uncertainty
+    counted)."""
+    text = (ROOT / "devices" / "scenarios" / "metro_vibration.toml").read_text()
+    for key in ("broadband_vertical_mps2", "broadband_longitudinal_mps2"):
+        text, n = re.subn(rf"^{key} = .*$", f"{key} = 0.0", text, flags=re.M)
+        assert n == 1
+    path = tmp_path / "bounce_only.toml"
+    path.write_text(text)
+    run = accuracy.replay_run(str(path))
+    s = accuracy.scores(run.estimator, run.n, run.truth_permil, run.sigma, signed=True)
+    assert s["avail"] >= 97.0
+    assert s["wrong"] == 0.0 and s["max"] < 1.0

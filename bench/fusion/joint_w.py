@@ -61,6 +61,7 @@ from bench.fusion.joint_layout import (
 from bench.fusion.joint_updates import _innov_var, _update
 
 W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
+AGE_REL = 0.3  # relative 1-sigma of the step age the curve detector infers
 
 
 @njit(cache=True)
@@ -130,6 +131,8 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
             for j in range(NX):
                 dj = dk if j == IK else (ds if j == IS else 0.0)
                 cov[i, j] += di * dj
+        # the age itself is uncertain: what s did meanwhile is not all carried by k
+        cov[IS, IS] += (AGE_REL * ds) * (AGE_REL * ds)
         m[M_WE] = 0.0
         m[M_WE1] = 0.0
         m[M_WPEND] = 0.0
