@@ -61,6 +61,7 @@ from bench.fusion.joint_layout import (
 from bench.fusion.joint_updates import _innov_var, _update
 
 W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
+NOTCH_LEAK = 0.005  # share of the power the notch removes that the z model leaves in R
 AGE_REL = 0.3  # relative 1-sigma of the step age the curve detector infers
 
 
@@ -290,7 +291,11 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         h[IZ] = 1.0 / t_z
         h[IZC] = -1.0 / t_z
         wv = m[M_WVAR] - floor if m[M_WVAR] > floor else 0.0
-        _update(x, cov, h, nu - (x[IZ] - x[IZC]) / t_z, floor + p[P_ZMIS] * wv, ph)
+        # and what the notch took out of the bounce is not known to the last per cent: a
+        # share of the power it removed stays in R (else k follows the notch's leftovers)
+        gone = m[M_NOTCH_IN] - m[M_NOTCH_OUT] if m[M_NOTCH_IN] > m[M_NOTCH_OUT] else 0.0
+        r_z = floor + p[P_ZMIS] * wv + NOTCH_LEAK * gone
+        _update(x, cov, h, nu - (x[IZ] - x[IZC]) / t_z, r_z, ph)
     else:
         _update(x, cov, h, nu, r, ph)
     lim = p[P_WGATE] * s_nu
