@@ -226,8 +226,6 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     t_z = bi - m[M_ZCLONE_T]
     use_z = ztau > 0.0 and abs(t_z - cnt * step_b) <= 0.5 * step_b
     m[M_WT0] = math.nan
-    if ztau > 0.0:
-        m[M_ZCLONE_T] = math.nan
     if cov[IS, IS] > W_SIGMA_S_MAX * W_SIGMA_S_MAX:
         # s not known yet (a start in motion): c = sqrt(g^2 - s^2) at a guessed s would put
         # the guess's cos error into b for good; w waits until u and the odometer tell s
