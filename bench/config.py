@@ -88,6 +88,7 @@ class EstimatorSettings:
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
     body_velocity_tau_s: float = 0.2  # correlation time of the body's vertical speed (0: off)
     body_velocity_mismatch: float = 0.1  # share of the w blocks' vibration left in their R
+    curve_rewind_s: float = 1.0  # a curve found up to this long after it began is replayed (0: off)
 
 
 ZERO_ALLOWED = frozenset(
@@ -99,6 +100,7 @@ ZERO_ALLOWED = frozenset(
         "vibration_notch_radius",
         "drift_llr",
         "body_velocity_tau_s",
+        "curve_rewind_s",
     }
 )
 """Estimator settings that may be 0 (every other one must be > 0)."""
@@ -251,6 +253,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "bias_sigma_mps2": 1.0,
     "body_velocity_tau_s": 10.0,
     "body_velocity_mismatch": 1.0,
+    "curve_rewind_s": 1.5,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as
 samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""

@@ -7,7 +7,14 @@ from __future__ import annotations
 import types
 from pathlib import Path
 
-from bench.fusion import joint_drift, joint_kernel, joint_layout, joint_updates, joint_w
+from bench.fusion import (
+    joint_drift,
+    joint_kernel,
+    joint_layout,
+    joint_rewind,
+    joint_updates,
+    joint_w,
+)
 from bench.fusion.kernel_cache import STAMP_NAME, cache_folder, drop_stale, sources_digest
 
 
@@ -56,7 +63,7 @@ def test_an_uncached_dispatcher_is_left_alone(tmp_path: Path) -> None:
 def test_the_real_kernel_is_guarded_over_all_its_sources() -> None:
     folder = cache_folder(joint_kernel.run)
     assert folder is not None  # numba still exposes where it caches: the guard is not inert
-    modules = (joint_kernel, joint_w, joint_updates, joint_drift, joint_layout)
+    modules = (joint_kernel, joint_w, joint_updates, joint_drift, joint_rewind, joint_layout)
     stamp = folder / STAMP_NAME
     if stamp.exists():  # written at import (absent only where the folder is read-only)
         assert stamp.read_text() == sources_digest(modules)

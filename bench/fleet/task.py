@@ -138,4 +138,3 @@ def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, 
     row["calibration_source"] = config.describe()
     row["result_rows"] = out.rows
     return row
-

@@ -80,6 +80,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_BIAS] = s.bias_sigma_mps2
     p[jl.P_ZTAU] = s.body_velocity_tau_s
     p[jl.P_ZMIS] = s.body_velocity_mismatch
+    p[jl.P_REWIND] = s.curve_rewind_s
     p[jl.P_NOTCH_RHO] = s.vibration_notch_radius
     p[jl.P_NOTCH_MU] = 0.01
     p[jl.P_DRIFT_LLR] = s.drift_llr
@@ -130,9 +131,19 @@ class JointFilter:
         self.bank_x = np.zeros((3, jl.NX))
         self.bank_cov = np.zeros((3, jl.NX, jl.NX))
         self.bank_m = np.zeros((3, jl.MB_SIZE))
+        # what the kernel keeps to rewind to a curve's start (joint_rewind)
+        self.hist = np.zeros((jl.HIST_N, jl.H_SIZE))
+        self.fring = np.zeros((jl.FRING_N, jl.F_SIZE))
+        self.snaps = np.zeros((jl.SNAP_N, jl.SNAP_SIZE))
+        self.ctr = np.zeros(jl.C_SIZE, dtype=np.int64)
         # compile or load the kernel now, when the pipeline is built (before acquisition),
         # not on the first live sample; an empty batch leaves the state as it is
         self.push(_EMPTY_F, _EMPTY_F, _EMPTY_F, _EMPTY_I, _EMPTY_F, _EMPTY_I8, None)
+
+    @property
+    def rewinds(self) -> int:
+        """How often the filter went back to a vertical curve's start (joint_rewind)."""
+        return int(self.ctr[jl.C_REWINDS])
 
     def push(
         self,
@@ -169,6 +180,10 @@ class JointFilter:
             self.bank_x,
             self.bank_cov,
             self.bank_m,
+            self.hist,
+            self.fring,
+            self.snaps,
+            self.ctr,
             np.ascontiguousarray(fa, dtype=np.int64),
             np.ascontiguousarray(fw, dtype=np.float64),
             np.ascontiguousarray(fs, dtype=np.float64),

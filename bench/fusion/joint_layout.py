@@ -79,7 +79,12 @@ M_BANK = 43  # 1 while the drift copies run (bench.fusion.joint_drift)
 M_BANK_WT0 = 44  # board time of their current w block's first sample (NaN: none)
 M_ZVAR = 45  # stationary variance of z, from the learnt block variance, (m/s)^2
 M_ZCLONE_T = 46  # board time zc was cloned (NaN: no clone)
-M_SIZE = 47
+M_REWIND_FROM = 47  # board time of the oldest state the kernel can rewind to (inf: none)
+M_REWIND_T = 48  # a curve the detector found began at this board time: rewind (NaN: no)
+M_REWIND_DK = 49  # its k step, (m/s^2)/m
+M_REWIND_AT = 50  # board time of the sample that fired (its replay resets the detector)
+M_SNAP_T = 51  # board time of the newest state kept for rewinding
+M_SIZE = 52
 
 # per drift copy (bench.fusion.joint_drift), rows of its (3, MB_SIZE) array
 MB_LL = 0  # log-likelihood of its odometer, standstill and w innovations since the start
@@ -144,7 +149,30 @@ P_WROUGH = 51  # m/s^2: block spread of w at which a ride counts as rough
 P_DRIFT_LLR = 52  # a drift copy is trusted once it leads the others by this log-likelihood
 P_ZTAU = 53  # s, correlation time of the body's vertical velocity (0: no z states)
 P_ZMIS = 54  # share of the learnt block variance the z model leaves in R
-P_SIZE = 55
+P_REWIND = 55  # s: how far back a curve's start may be replayed from (0: never)
+P_SIZE = 56
+
+# -- rewinding (bench.fusion.joint_rewind): the recent inputs and states the kernel keeps --
+HIST_N = 8192  # samples kept (8.2 s at 1 kHz)
+H_B, H_U, H_W, H_MASK, H_RES, H_LATCHED, H_F0, H_FN = 0, 1, 2, 3, 4, 5, 6, 7
+H_SIZE = 8  # per sample: its inputs and where its SPEED_REF frames are in the frame ring
+FRING_N = 1024  # SPEED_REF frames kept (20 s at 50 Hz)
+F_WHEN, F_SPEED, F_RESTART, F_STILL = 0, 1, 2, 3
+F_SIZE = 4
+SNAP_N = 40  # states kept, one per SNAP_EVERY_S: 2 s
+SNAP_EVERY_S = 0.05
+C_SEQ, C_SNAPS, C_FRAMES = 0, 1, 2  # counters (int64): samples, states and frames kept so far
+C_REWINDS = 3  # rewinds done
+C_REWOUND_TO = 4  # the sample count of the state the latest rewind went back to
+C_SIZE = 5
+S_T, S_SEQ = 0, 1  # a kept state: board time and sample count after it, then x, P, m, copies
+S_X = 2
+S_COV = S_X + NX
+S_M = S_COV + NX * NX
+S_BX = S_M + M_SIZE
+S_BCOV = S_BX + 3 * NX
+S_BM = S_BCOV + 3 * NX * NX
+SNAP_SIZE = S_BM + 3 * MB_SIZE
 
 
 def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -171,6 +199,10 @@ def new_state(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     m[M_OUT_SINCE] = math.nan
     m[M_BANK_WT0] = math.nan
     m[M_ZCLONE_T] = math.nan
+    m[M_REWIND_FROM] = math.inf
+    m[M_REWIND_T] = math.nan
+    m[M_REWIND_AT] = math.nan
+    m[M_SNAP_T] = -math.inf
     m[M_WVAR] = 0.0
     m[M_STEP_T] = -math.inf
     return x, cov, m

@@ -28,6 +28,10 @@ from bench.fusion.joint_layout import (
     M_NOTCH_TH,
     M_NOTCH_X1,
     M_NOTCH_X2,
+    M_REWIND_AT,
+    M_REWIND_DK,
+    M_REWIND_FROM,
+    M_REWIND_T,
     M_ROUGH,
     M_WCOUNT,
     M_WE,
@@ -46,6 +50,7 @@ from bench.fusion.joint_layout import (
     P_KMAX,
     P_NOTCH_MU,
     P_NOTCH_RHO,
+    P_REWIND,
     P_WBLOCK,
     P_WCORR,
     P_WDET_MIN,
@@ -62,6 +67,8 @@ from bench.fusion.joint_updates import _innov_var, _update
 
 W_SIGMA_S_MAX = 0.02  # m/s^2: w is used once s is known this well (2 permil)
 NOTCH_LEAK = 0.005  # share of the power the notch removes that the z model leaves in R
+HALF_WAY = 0.6  # share of the way to firing beyond which a pending curve widens the sigma
+REWIND_EARLY_S = 0.05  # a rewind starts this much before the start the detector infers
 AGE_REL = 0.3  # relative 1-sigma of the step age the curve detector infers
 
 
@@ -87,7 +94,7 @@ def _step_age(e1, e):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
-def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-def]
+def _curve_detector(x, cov, m, p, nu, hk, bi, span, fresh):  # type: ignore[no-untyped-def]
     """A vertical curve's start or end under vibration: two cascaded moving means of the
     block innovations depart from zero by more than their learnt spread. Their ratio tells
     how long ago the step began and so its whole size; k's variance is raised by that
@@ -105,7 +112,7 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
     big = e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and abs(e) > p[P_WDET_MIN]
     # half way to firing: a curve may have started, and s has been moving by its k since;
     # the output's sigma says so until the detector decides (the state is not touched)
-    half = 4.0 * e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and 2.0 * abs(e) > p[P_WDET_MIN]
+    half = e * e > (HALF_WAY * p[P_WDET_SIGMA]) ** 2 * var and abs(e) > HALF_WAY * p[P_WDET_MIN]
     # the step the two means imply, and when it began (only past half way: firing needs it too)
     age, step = 0.0, e1
     if half:
@@ -124,21 +131,46 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span):  # type: ignore[no-untyped-
         dk = step / hk
         kmax = p[P_KMAX]
         dk = kmax if dk > kmax else (-kmax if dk < -kmax else dk)
-        ds = dk * x[IV] * age * tau
-        for i in range(NX):
-            di = dk if i == IK else (ds if i == IS else 0.0)
-            if di == 0.0:
-                continue
-            for j in range(NX):
-                dj = dk if j == IK else (ds if j == IS else 0.0)
-                cov[i, j] += di * dj
-        # the age itself is uncertain: what s did meanwhile is not all carried by k
-        cov[IS, IS] += (AGE_REL * ds) * (AGE_REL * ds)
+        t_on = bi - age * tau - REWIND_EARLY_S
+        # only on a rough ride: on a smooth one the block gate takes a step at once (its
+        # carry handles a block that straddles it), and w is precise enough for a replay
+        # from a block's start to misread such a block as the whole step
+        if (
+            p[P_REWIND] > 0.0
+            and m[M_ROUGH] >= 1.0
+            and not fresh
+            and age * tau <= p[P_REWIND]
+            and (t_on > m[M_REWIND_FROM])
+        ):
+            # the kernel goes back to just before the curve began and replays since
+            # (bench.fusion.joint_rewind): k's variance is raised there, not here
+            m[M_REWIND_T] = t_on
+            m[M_REWIND_DK] = dk
+            m[M_REWIND_AT] = bi
+        else:
+            ds = dk * x[IV] * age * tau
+            for i in range(NX):
+                di = dk if i == IK else (ds if i == IS else 0.0)
+                if di == 0.0:
+                    continue
+                for j in range(NX):
+                    dj = dk if j == IK else (ds if j == IS else 0.0)
+                    cov[i, j] += di * dj
+            # the age itself is uncertain: what s did meanwhile is not all carried by k
+            cov[IS, IS] += (AGE_REL * ds) * (AGE_REL * ds)
         m[M_WE] = 0.0
         m[M_WE1] = 0.0
         m[M_WPEND] = 0.0
         m[M_HALF_T0] = math.nan
         m[M_WHOLD] = bi + 2.0 * tau
+    elif bi == m[M_REWIND_AT]:
+        # the replay after a rewind reaches the sample that fired: the detector starts
+        # afresh from here, as it did then
+        m[M_WE] = 0.0
+        m[M_WE1] = 0.0
+        m[M_WPEND] = 0.0
+        m[M_HALF_T0] = math.nan
+        m[M_REWIND_AT] = math.nan
     elif not big:
         if not half:
             m[M_HALF_T0] = math.nan
@@ -258,7 +290,10 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
     if p[P_WCORR] > span:
         r = floor + (r - floor) * (p[P_WCORR] / span)
     s_nu = hph + r
-    _curve_detector(x, cov, m, p, nu, h[IK], bi, span)
+    # a vertical curve starts or ends: k jumps, which its random walk per metre cannot
+    # follow; the block tells by how much, when the train is fast enough for it to show
+    gate = nu * nu > p[P_WGATE] * s_nu and h[IK] * p[P_KMAX] > math.sqrt(p[P_WGATE] * s_nu)
+    _curve_detector(x, cov, m, p, nu, h[IK], bi, span, gate)
     carry = m[M_JUMP_DK]
     m[M_JUMP_DK] = 0.0
     if carry != 0.0:
@@ -269,10 +304,8 @@ def _w_block(x, cov, m, p, h, ph, bi, wi, r_white):  # type: ignore[no-untyped-d
         cov[IK, IS] += carry * ds
         cov[IS, IK] += carry * ds
         cov[IS, IS] += ds * ds
-    if nu * nu > p[P_WGATE] * s_nu and h[IK] * p[P_KMAX] > math.sqrt(p[P_WGATE] * s_nu):
-        # a vertical curve starts or ends: k jumps, which its random walk per metre cannot
-        # follow; the block tells by how much (at most the sharpest curve a line has), when
-        # the train is fast enough for the curve to show at all
+    if gate:
+        # the step's size (at most the sharpest curve a line has)
         dk = nu / h[IK]
         dk = p[P_KMAX] if dk > p[P_KMAX] else (-p[P_KMAX] if dk < -p[P_KMAX] else dk)
         # and s has moved by the old k for the part of the block after the jump: both get

@@ -121,7 +121,7 @@ class SessionLike(Protocol):
 
     @property
     def mode(self) -> str:
-        """"live" or "replay"."""
+        """ "live" or "replay"."""
         ...
 
     @property
@@ -158,4 +158,3 @@ class SessionLike(Protocol):
     def tolerance(self) -> float: ...
 
     def set_tolerance(self, permil: float) -> None: ...
-

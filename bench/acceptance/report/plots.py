@@ -18,7 +18,6 @@ MAX_POINTS = 6000
 """Points per plotted line: longer series are reduced to a min/max envelope."""
 
 
-
 def _envelope(x: np.ndarray, y: np.ndarray, max_points: int = MAX_POINTS) -> tuple:
     """Min/max per bin: a long series keeps its spikes when reduced for plotting."""
     n = len(x)
