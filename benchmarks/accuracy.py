@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -56,7 +56,14 @@ METRICS: dict[str, tuple[str, str, str, float | None]] = {
     "wrong": ("> 1 permil wrong", "%", "<=", 0.5),
     "cover": ("within 2 sigma", "%", ">=", 95.0),
 }
-METHODS = {"reference": "reference (vs |truth|)", "estimator": "estimator (signed)"}
+METHODS = {
+    "reference": "reference (vs |truth|)",
+    "estimator": "estimator (signed)",
+    "told": "estimator, curves told",
+}
+TOLD = ("metro_vibration",)
+"""Scenarios also scored with the filter told each vertical curve's start and end (its
+bound: what a perfect curve detector would give, :func:`replay_told`)."""
 
 
 @dataclass
@@ -95,12 +102,76 @@ def _batches(frames: np.ndarray) -> Iterator[Any]:
         yield SourceBatch(frames[i : i + BATCH_FRAMES])
 
 
+def curve_changes(truth: np.ndarray, g: float) -> list[tuple[float, float]]:
+    """(time, step of k) where the truth's rate per metre of g sin(alpha) changes: each
+    vertical curve's start and end."""
+    s = g * np.sin(np.arctan(truth["gradient_permil"] / 1000.0))
+    dx = np.gradient(truth["position_m"])
+    k = np.round(np.where(dx > 1e-6, np.gradient(s) / np.maximum(dx, 1e-9), 0.0), 4)
+    out: list[tuple[float, float]] = []
+    for i in np.flatnonzero(np.abs(np.diff(k)) > 5e-4):
+        t = float(truth["time_s"][i])
+        if not out or t - out[-1][0] > 0.5:
+            out.append((t, float(k[min(i + 3, len(k) - 1)] - k[max(i - 3, 0)])))
+    return out
+
+
+def replay_told(name: str) -> Run:
+    """The run replayed with the filter told each curve's start and end as it comes: its
+    curve detector off, k's variance raised by the true step (1 sigma) at the true
+    instant. Nothing detects better than that, so its availability bounds what any curve
+    detector can give on this run with the filter's models of w and of the odometer."""
+    from bench.fusion import estimator as estimator_module
+    from bench.fusion import joint_layout as jl
+    from bench.fusion.joint import FilterOutput, JointFilter
+
+    sim, config = emulate(name)
+    changes = curve_changes(sim.truth, config.g)
+
+    class Told(JointFilter):
+        def __init__(self, *a: Any, **k: Any) -> None:
+            self.next = 0  # the next change to tell
+            super().__init__(*a, **k)
+            self.p[jl.P_WDET_SIGMA] = 1e9  # the detector never fires nor hedges
+
+        def push(self, b, u, w, mask, residual, latched, frames):  # type: ignore[no-untyped-def]
+            # cut the push at each change it holds: (first sample on or off the curve, step)
+            cuts: list[tuple[int, float]] = []
+            while self.next < len(changes) and len(b) and changes[self.next][0] <= b[-1]:
+                t, dk = changes[self.next]
+                cuts.append((int(np.searchsorted(b, t)), dk))
+                self.next += 1
+            fa = frames[0] if frames is not None else np.zeros(0, np.int64)
+            outs, lo = [], 0
+            for hi, dk in [*cuts, (len(b), 0.0)]:
+                sel = (fa >= lo) & (fa < hi)
+                fr = None if frames is None else (fa[sel] - lo, *(f[sel] for f in frames[1:]))
+                args = (b, u, w, mask, residual, latched)
+                outs.append(super().push(*(x[lo:hi] for x in args), fr))
+                self.cov[jl.IK, jl.IK] += dk * dk
+                lo = hi
+            return FilterOutput(
+                *(np.concatenate([getattr(o, f.name) for o in outs]) for f in fields(FilterOutput))
+            )
+
+    real = estimator_module.JointFilter
+    estimator_module.JointFilter = Told  # type: ignore[misc]
+    try:
+        return _replay(name, sim, config)
+    finally:
+        estimator_module.JointFilter = real  # type: ignore[misc]
+
+
 def replay_run(name: str) -> Run:
     """Emulate a scenario and replay its frames through the bench's pipeline."""
+    sim, config = emulate(name)
+    return _replay(name, sim, config)
+
+
+def _replay(name: str, sim: Any, config: Any) -> Run:
     from bench.pipeline.steps import Pipeline
     from bench.replay.run import run_steps
 
-    sim, config = emulate(name)
     counter0 = int(sim.truth["counter"][0]) if len(sim.truth) else 0
     cols: dict[str, list[np.ndarray]] = {"n": [], "gradient": [], "signed": [], "sigma": []}
     has_sigma = False
@@ -161,16 +232,18 @@ def _target(name: str, method: str, metric: str) -> float | None:
     return target
 
 
-def figures_for(run: Run) -> list[Figure]:
+def figures_for(run: Run, told: Run | None = None) -> list[Figure]:
     out = []
-    for method, values, signed in (
-        ("reference", run.reference, False),
-        ("estimator", run.estimator, True),
-    ):
-        sigma = run.sigma if method == "estimator" else None
+    methods = [
+        ("reference", run.reference, False, None),
+        ("estimator", run.estimator, True, run.sigma),
+    ]
+    if told is not None:
+        methods.append(("told", told.estimator, True, told.sigma))
+    for method, values, signed, sigma in methods:
         got = scores(values, run.n, run.truth_permil, sigma, signed)
         for metric, (label, unit, op, _) in METRICS.items():
-            if metric == "cover" and (method == "reference" or run.sigma is None):
+            if metric == "cover" and sigma is None:
                 continue  # no sigma, no coverage: the table prints '-'
             value = got[metric]
             detail = "" if value is not None else "no sample given"
@@ -200,7 +273,7 @@ def measure(scenarios: list[str] | None = None, log: Any = None) -> list[Figure]
     for name in scenarios or SCENARIOS:
         if log is not None:
             log(f"accuracy: {name}")
-        out += figures_for(replay_run(name))
+        out += figures_for(replay_run(name), replay_told(name) if name in TOLD else None)
     return out
 
 
@@ -234,6 +307,7 @@ def tables(figures: list[Figure]) -> list[tuple[str, str, list[list[str]]]]:
         rows = [
             [label] + [cell(cells.get((method, metric))) for metric in METRICS]
             for method, label in METHODS.items()
+            if any(m == method for m, _ in cells)
         ]
         out.append((s, desc[s], rows))
     return out

@@ -79,3 +79,27 @@ def test_accuracy_is_part_of_the_full_run_and_a_partial_run_keeps_other_figures(
     assert harness._measurement_of({"key": "live_max_rate_strict"}) == "live_rate"
     assert harness._measurement_of({"key": "replay_mcap"}) == "replay"
     assert harness._measurement_of({"key": "latency_p99_tui"}) == "latency"
+
+
+def test_the_curves_told_are_the_shipped_lines_curves_and_their_bound_holds():
+    """metro_vibration's line: grade changes at 250, 750, 1150 and 1600 m (0/+30/0/-25/+5
+    permil), each over an 80 m vertical curve centred on it: k = g sin(atan(0.03)) / 80 m
+    = 3.68e-3 (m/s^2)/m for a 30 permil change. Told each start and end, the filter gives
+    at least what it gives with its own curve detector, and nothing confidently wrong."""
+    from benchmarks.accuracy import curve_changes, emulate, replay_run, replay_told
+
+    sim, config = emulate("metro_vibration")
+    changes = curve_changes(sim.truth, config.g)
+    assert len(changes) == 8
+    where = np.interp([t for t, _ in changes], sim.truth["time_s"], sim.truth["position_m"])
+    np.testing.assert_allclose(where, [210, 290, 710, 790, 1110, 1190, 1560, 1640], atol=1.0)
+    k30 = config.g * math.sin(math.atan(0.03)) / 80.0
+    steps = [dk for _, dk in changes]
+    np.testing.assert_allclose(steps[:4], [k30, -k30, -k30, k30], atol=1e-4)
+    told = scores(*_est(replay_told("metro_vibration")))
+    own = scores(*_est(replay_run("metro_vibration")))
+    assert told["avail"] >= own["avail"] and told["wrong"] <= 0.05
+
+
+def _est(run: Run) -> tuple:
+    return run.estimator, run.n, run.truth_permil, run.sigma, True

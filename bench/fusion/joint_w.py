@@ -110,14 +110,14 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span, fresh):  # type: ignore[no-u
     m[M_WE] = e
     var = m[M_WEVAR]
     big = e * e > p[P_WDET_SIGMA] * p[P_WDET_SIGMA] * var and abs(e) > p[P_WDET_MIN]
-    # half way to firing: a curve may have started, and s has been moving by its k since;
+    # past HALF_WAY to firing: a curve may have started, and s has been moving by its k since;
     # the output's sigma says so until the detector decides (the state is not touched)
     half = e * e > (HALF_WAY * p[P_WDET_SIGMA]) ** 2 * var and abs(e) > HALF_WAY * p[P_WDET_MIN]
-    # the step the two means imply, and when it began (only past half way: firing needs it too)
+    # the step the two means imply, and when it began (only past HALF_WAY: firing needs it too)
     age, step = 0.0, e1
     if half:
         age = _step_age(e1, e)
-        # the step began before half way was passed, by the age the means gave then; later
+        # the step began before HALF_WAY was passed, by the age the means gave then; later
         # it cannot be older than that (a mean falling back, as the updates take the step
         # in, would read as a step from long ago)
         if m[M_HALF_T0] != m[M_HALF_T0]:
