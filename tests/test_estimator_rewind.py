@@ -149,3 +149,45 @@ def test_a_stream_cut_anyhow_gives_the_same_bytes_with_rewinds_in_it() -> None:
     cut, rewinds_cut = _results_cut(config, frames, sizes)
     assert rewinds == rewinds_cut >= 3
     assert whole.tobytes() == cut.tobytes()
+
+
+def _rings(times: list[float]) -> tuple[np.ndarray, ...]:
+    """Kept states at these board times (state i has x[IV] = i), as keep() leaves them."""
+    from bench.fusion import joint_rewind as jr
+
+    p = np.zeros(jl.P_SIZE)
+    p[jl.P_REWIND] = 1.0
+    x, cov, m = np.zeros(jl.NX), np.eye(jl.NX), np.zeros(jl.M_SIZE)
+    xb, cb, mb = np.zeros((3, jl.NX)), np.zeros((3, jl.NX, jl.NX)), np.zeros((3, jl.MB_SIZE))
+    snaps, hist = np.zeros((jl.SNAP_N, jl.SNAP_SIZE)), np.zeros((jl.HIST_N, jl.H_SIZE))
+    ctr = np.zeros(jl.C_SIZE, dtype=np.int64)
+    for i, t in enumerate(times):
+        hist[i % jl.HIST_N, jl.H_B] = t
+        ctr[jl.C_SEQ] = i + 1
+        x[jl.IV] = i
+        jr.keep(snaps, hist, ctr, p, x, cov, m, xb, cb, mb, i)
+    return snaps, hist, ctr, p, x, cov, m, xb, cb, mb
+
+
+def test_a_rewind_goes_to_the_newest_state_before_the_start_and_never_past_a_replays_first():
+    from bench.fusion import joint_rewind as jr
+
+    snaps, hist, ctr, p, x, cov, m, xb, cb, mb = _rings([0.1 * i for i in range(10)])
+    assert jr.reach(snaps, hist, ctr, p) == 0.0  # the oldest kept state
+    m[jl.M_REWIND_T], m[jl.M_REWIND_DK], m[jl.M_WHOLD] = 0.55, 0.002, 9.0
+    row = jr.restore(snaps, ctr, m, x, cov, xb, cb, mb)
+    assert x[jl.IV] == 5.0 and snaps[row, jl.S_T] == pytest.approx(0.5)  # newest before 0.55
+    assert cov[jl.IK, jl.IK] == 1.0 + 0.002**2 and m[jl.M_WHOLD] == 9.0
+    assert ctr[jl.C_SNAPS] == 6 and ctr[jl.C_REWOUND_TO] == 6 and ctr[jl.C_REWINDS] == 1
+    assert np.isnan(m[jl.M_REWIND_T])
+    # the replay keeps states from there on; a second rewind to a start before the first's
+    # goes back only to the replay's first state (older ones know nothing of that curve)
+    for i, t in enumerate([0.6, 0.7, 0.8], start=6):
+        hist[i, jl.H_B] = t
+        ctr[jl.C_SEQ] = i + 1
+        x[jl.IV] = 100 + i
+        jr.keep(snaps, hist, ctr, p, x, cov, m, xb, cb, mb, i)
+    assert jr.reach(snaps, hist, ctr, p) == pytest.approx(0.6)
+    m[jl.M_REWIND_T] = 0.2
+    jr.restore(snaps, ctr, m, x, cov, xb, cb, mb)
+    assert x[jl.IV] == 106.0 and ctr[jl.C_SNAPS] == 7

@@ -23,6 +23,7 @@ import math
 from numba import njit
 
 from bench.fusion.joint_layout import (
+    C_FLOOR,
     C_FRAMES,
     C_REWINDS,
     C_REWOUND_TO,
@@ -103,6 +104,8 @@ def reach(snaps, hist, ctr, p):  # type: ignore[no-untyped-def]
     # from the oldest: a newer state is usable whenever an older one is, so this is
     # usually the first
     for back in range(kept - 1, -1, -1):
+        if ctr[C_SNAPS] - 1 - back < ctr[C_FLOOR]:
+            continue  # before the last rewind's replay (restore)
         row = (ctr[C_SNAPS] - 1 - back) % SNAP_N
         seq = int(snaps[row, S_SEQ])
         if seq < ctr[C_SEQ] - HIST_N:
@@ -150,10 +153,17 @@ def restore(snaps, ctr, m, x, cov, xb, cb, mb):  # type: ignore[no-untyped-def]
     hold, at, dk = m[M_WHOLD], m[M_REWIND_AT], m[M_REWIND_DK]
     kept = ctr[C_SNAPS] if ctr[C_SNAPS] < SNAP_N else SNAP_N
     back = 0
-    while back < kept - 1 and snaps[(ctr[C_SNAPS] - 1 - back) % SNAP_N, S_T] >= t_on:
+    # never past the first state a previous rewind's replay kept: older ones do not know
+    # of that curve (the replay would drop what the last rewind told it)
+    while (
+        back < kept - 1
+        and ctr[C_SNAPS] - 2 - back >= ctr[C_FLOOR]
+        and snaps[(ctr[C_SNAPS] - 1 - back) % SNAP_N, S_T] >= t_on
+    ):
         back += 1
     row = (ctr[C_SNAPS] - 1 - back) % SNAP_N
     ctr[C_SNAPS] -= back
+    ctr[C_FLOOR] = ctr[C_SNAPS]
     for i in range(NX):
         x[i] = snaps[row, S_X + i]
         for j in range(NX):
