@@ -86,7 +86,7 @@ class EstimatorSettings:
     vibration_notch_radius: float = 0.9  # adaptive notch on w for the body's bounce (0: none)
     drift_llr: float = 10.0  # log-likelihood lead that names a drifting channel early (0: off)
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
-    body_velocity_tau_s: float = 0.2  # correlation time of the body's vertical speed (0: off)
+    body_velocity_tau_s: float = 0.05  # correlation time given the body's vertical speed (0: off)
     body_velocity_mismatch: float = 0.1  # share of the w blocks' vibration left in their R
     curve_rewind_s: float = 1.0  # a curve found up to this long after it began is replayed (0: off)
 
