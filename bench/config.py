@@ -88,6 +88,7 @@ class EstimatorSettings:
     bias_sigma_mps2: float = 0.0005  # sensors' bias left after calibration (drift), in sigma
     body_velocity_tau_s: float = 0.05  # correlation time given the body's vertical speed (0: off)
     body_velocity_mismatch: float = 0.1  # share of the w blocks' vibration left in their R
+    curve_visible_speed_mps: float = 25.0  # below, k walks faster on a rough ride (0: never)
     curve_rewind_s: float = 1.0  # a curve found up to this long after it began is replayed (0: off)
 
 
@@ -101,6 +102,7 @@ ZERO_ALLOWED = frozenset(
         "drift_llr",
         "body_velocity_tau_s",
         "curve_rewind_s",
+        "curve_visible_speed_mps",
     }
 )
 """Estimator settings that may be 0 (every other one must be > 0)."""
@@ -254,6 +256,7 @@ ESTIMATOR_MAX: dict[str, float] = {
     "body_velocity_tau_s": 10.0,
     "body_velocity_mismatch": 1.0,
     "curve_rewind_s": 1.5,
+    "curve_visible_speed_mps": 200.0,
 }
 """Largest sensible value of each estimator setting: windows are held in memory as
 samples (10 s at 1 kHz is 10 000), and beyond these the estimator means nothing."""

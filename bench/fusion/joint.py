@@ -81,6 +81,7 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_ZTAU] = s.body_velocity_tau_s
     p[jl.P_ZMIS] = s.body_velocity_mismatch
     p[jl.P_REWIND] = s.curve_rewind_s
+    p[jl.P_KVIS] = s.curve_visible_speed_mps
     p[jl.P_NOTCH_RHO] = s.vibration_notch_radius
     p[jl.P_NOTCH_MU] = 0.01
     p[jl.P_DRIFT_LLR] = s.drift_llr

@@ -150,7 +150,8 @@ P_DRIFT_LLR = 52  # a drift copy is trusted once it leads the others by this log
 P_ZTAU = 53  # s, correlation time of the body's vertical velocity (0: no z states)
 P_ZMIS = 54  # share of the learnt block variance the z model leaves in R
 P_REWIND = 55  # s: how far back a curve's start may be replayed from (0: never)
-P_SIZE = 56
+P_KVIS = 56  # m/s: below this the detector misses curves, and k walks faster (0: never)
+P_SIZE = 57
 
 # -- rewinding (bench.fusion.joint_rewind): the recent inputs and states the kernel keeps --
 HIST_N = 8192  # samples kept (8.2 s at 1 kHz)

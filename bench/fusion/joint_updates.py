@@ -18,6 +18,7 @@ from bench.fusion.joint_layout import (
     IV,
     IZ,
     NX,
+    P_KVIS,
     P_LSIG,
     P_QA,
     P_QB,
@@ -120,7 +121,14 @@ def _predict(x, cov, dt, p, blind, rough, zvar):  # type: ignore[no-untyped-def]
     d = abs(v) * dt  # metres travelled: the gradient changes only with distance
     if d > 0.0:
         qs = p[P_QS]
-        qk = p[P_QK_BLIND] if blind else p[P_QK] * (p[P_QK_ROUGH] / p[P_QK]) ** rough
+        qr = p[P_QK_ROUGH]
+        vis = p[P_KVIS]
+        if vis > abs(v):
+            # below this speed the curve detector misses curves (their v^2/R under its
+            # threshold, which grows as 1/v^2): k's walk on a rough ride must hold them, its
+            # variance as (vis / v)^4, at most the smooth ride's
+            qr = p[P_QK] if abs(v) * p[P_QK] ** 0.25 <= vis * qr**0.25 else qr * (vis / abs(v)) ** 4
+        qk = p[P_QK_BLIND] if blind else p[P_QK] * (qr / p[P_QK]) ** rough
         cov[IS, IS] += qs * d + qk * d * d * d / 3.0
         cov[IS, IK] += qk * d * d / 2.0
         cov[IK, IS] += qk * d * d / 2.0
