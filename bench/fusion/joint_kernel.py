@@ -546,8 +546,9 @@ def run(  # type: ignore[no-untyped-def]
             joint_rewind.keep(snaps, hist, ctr, p, x, cov, m, xb, cb, mb, now)
 
 
-# the loop freezes joint_w's, joint_updates' and joint_layout's code and constants into its
-# own machine code: numba's cache must be dropped when any of them changed (kernel_cache)
+# the loop freezes the code and constants of joint_w, joint_updates, joint_drift,
+# joint_rewind and joint_layout into its own machine code: numba's cache must be dropped
+# when any of them changed (kernel_cache)
 drop_stale(
     run,
     (sys.modules[__name__], joint_w, joint_updates, joint_drift, joint_rewind, joint_layout),

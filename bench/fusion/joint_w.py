@@ -97,9 +97,12 @@ def _step_age(e1, e):  # type: ignore[no-untyped-def]
 def _curve_detector(x, cov, m, p, nu, hk, bi, span, fresh):  # type: ignore[no-untyped-def]
     """A vertical curve's start or end under vibration: two cascaded moving means of the
     block innovations depart from zero by more than their learnt spread. Their ratio tells
-    how long ago the step began and so its whole size; k's variance is raised by that
-    step's k, and s's by what that k has done since it began (correlated), so the next
-    updates put both right. Half way to firing, that s error widens the output's sigma."""
+    how long ago the step began and so its whole size. On a rough ride the kernel then
+    rewinds to just before that start (M_REWIND_T; bench.fusion.joint_rewind) unless
+    ``fresh`` (the block gate takes this step itself) or the start is out of reach;
+    otherwise k's variance is raised here by that step's k, and s's by what that k has
+    done since it began (correlated), so the next updates put both right. Past HALF_WAY
+    to firing, that s error widens the output's sigma."""
     tau = p[P_WDET_TAU]
     alpha = span / tau if span < tau else 1.0
     # two moving means in cascade: the body's bounce (a few Hz) falls off as f^-2, so a
