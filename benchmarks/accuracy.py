@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -162,9 +162,13 @@ def replay_told(name: str) -> Run:
         estimator_module.JointFilter = real  # type: ignore[misc]
 
 
-def replay_run(name: str) -> Run:
-    """Emulate a scenario and replay its frames through the bench's pipeline."""
+def replay_run(name: str, **settings: float) -> Run:
+    """Emulate a scenario and replay its frames through the bench's pipeline; ``settings``
+    override the calibration's estimator settings (``curve_rewind_s=0.0``, ...)."""
     sim, config = emulate(name)
+    if settings:
+        est = replace(config.estimator, **settings)
+        config = replace(config, estimator=est)
     return _replay(name, sim, config)
 
 
@@ -235,13 +239,13 @@ def _target(name: str, method: str, metric: str) -> float | None:
 def figures_for(run: Run, told: Run | None = None) -> list[Figure]:
     out = []
     methods = [
-        ("reference", run.reference, False, None),
-        ("estimator", run.estimator, True, run.sigma),
+        ("reference", run.reference, run.n, False, None),
+        ("estimator", run.estimator, run.n, True, run.sigma),
     ]
     if told is not None:
-        methods.append(("told", told.estimator, True, told.sigma))
-    for method, values, signed, sigma in methods:
-        got = scores(values, run.n, run.truth_permil, sigma, signed)
+        methods.append(("told", told.estimator, told.n, True, told.sigma))
+    for method, values, n, signed, sigma in methods:
+        got = scores(values, n, run.truth_permil, sigma, signed)
         for metric, (label, unit, op, _) in METRICS.items():
             if metric == "cover" and sigma is None:
                 continue  # no sigma, no coverage: the table prints '-'

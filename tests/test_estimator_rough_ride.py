@@ -4,37 +4,21 @@ emulator's truth: more of the run given, no more of it wrong, the sigma still ho
 
 from __future__ import annotations
 
-import dataclasses
 import re
 from pathlib import Path
-
-import pytest
 
 import benchmarks.accuracy as accuracy
 from benchmarks.common import ROOT
 
 
-def _figures(
-    monkeypatch: pytest.MonkeyPatch, scenario: str = "metro_vibration", **settings: float
-) -> dict[str, float | None]:
-    as_built = accuracy.scenario_config
-
-    def config(sc):  # type: ignore[no-untyped-def]
-        c = as_built(sc)
-        return dataclasses.replace(c, estimator=dataclasses.replace(c.estimator, **settings))
-
-    monkeypatch.setattr(accuracy, "scenario_config", config)
-    run = accuracy.replay_run(scenario)
+def _figures(scenario: str = "metro_vibration", **settings: float) -> dict[str, float | None]:
+    run = accuracy.replay_run(scenario, **settings)
     return accuracy.scores(run.estimator, run.n, run.truth_permil, run.sigma, signed=True)
 
 
-def test_a_bounded_body_velocity_lets_w_give_more_of_a_rough_ride(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    with_z = _figures(monkeypatch, body_velocity_tau_s=0.05)
-    block_noise = _figures(
-        monkeypatch, body_velocity_tau_s=0.0
-    )  # the vibration as block noise only
+def test_a_bounded_body_velocity_lets_w_give_more_of_a_rough_ride() -> None:
+    with_z = _figures(body_velocity_tau_s=0.05)
+    block_noise = _figures(body_velocity_tau_s=0.0)  # the vibration as block noise only
     assert with_z["avail"] >= 92.0 and with_z["avail"] >= block_noise["avail"] + 2.5
     assert with_z["wrong"] <= 0.25  # > 1 permil wrong, % of the run (target 0.5)
     assert with_z["cover"] >= 97.0  # within 2 sigma, % of what is given
@@ -64,16 +48,16 @@ def test_on_the_bounce_alone_a_curve_start_is_never_given_confidently_wrong(
     assert s["cover"] >= 95.0
 
 
-def test_below_the_speed_where_w_shows_every_curve_k_walks_faster_so_the_demo_is_not_wrong(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_below_the_speed_where_w_shows_every_curve_k_walks_faster_so_the_demo_is_not_wrong() -> (
+    None
+):
     """The demo's +20 permil hump at 14 m/s: its 100 m curves give v^2/R = v^2 k / g =
     196 * 1.96e-3 / 9.81 = 0.039 m/s^2, under what the detector can tell from the ride, so
     k must follow them by its walk; at the cruise walk it lagged and overshot by up to
     1.8 permil at a sigma of 0.2 (measured 0.44 % of the run > 1 permil wrong, 0.11 %
     with the walk growing below curve_visible_speed_mps)."""
-    faster = _figures(monkeypatch, "demo")
-    cruise = _figures(monkeypatch, "demo", curve_visible_speed_mps=0.0)
+    faster = _figures("demo")
+    cruise = _figures("demo", curve_visible_speed_mps=0.0)
     assert faster["wrong"] <= 0.2 and faster["wrong"] <= 0.5 * cruise["wrong"]
     assert faster["avail"] >= cruise["avail"] - 1.5  # measured 80.2 against 81.4 %
     assert faster["cover"] >= 96.0

@@ -511,9 +511,7 @@ def run(  # type: ignore[no-untyped-def]
     r3 = np.zeros(3)
     j = 0
     for i in range(n):
-        slot = joint_rewind.record(
-            hist, fring, ctr, b[i], u[i], w[i], mask[i], residual[i], latched[i]
-        )
+        slot = joint_rewind.record(hist, ctr, b[i], u[i], w[i], mask[i], residual[i], latched[i])
         while j < nf and f_anchor[j] == i:
             joint_rewind.add_frame(
                 hist, fring, ctr, slot, f_when[j], f_speed[j], f_restart[j], f_still[j]

@@ -67,7 +67,7 @@ from bench.fusion.joint_layout import (
 
 
 @njit(cache=True, inline="always")
-def record(hist, fring, ctr, bi, ui, wi, mask_i, res_i, latched_i):  # type: ignore[no-untyped-def]
+def record(hist, ctr, bi, ui, wi, mask_i, res_i, latched_i):  # type: ignore[no-untyped-def]
     """A new sample into the input ring; returns its row."""
     slot = ctr[C_SEQ] % HIST_N
     ctr[C_SEQ] += 1

@@ -126,8 +126,9 @@ def _predict(x, cov, dt, p, blind, rough, zvar):  # type: ignore[no-untyped-def]
         if vis > abs(v):
             # below this speed the curve detector misses curves (their v^2/R under its
             # threshold, which grows as 1/v^2): k's walk on a rough ride must hold them, its
-            # variance as (vis / v)^4, at most the smooth ride's
-            qr = p[P_QK] if abs(v) * p[P_QK] ** 0.25 <= vis * qr**0.25 else qr * (vis / abs(v)) ** 4
+            # variance as (vis / v)^4, at most the smooth ride's (v != 0: d > 0)
+            qr *= (vis / abs(v)) ** 4
+            qr = p[P_QK] if qr > p[P_QK] else qr
         qk = p[P_QK_BLIND] if blind else p[P_QK] * (qr / p[P_QK]) ** rough
         cov[IS, IS] += qs * d + qk * d * d * d / 3.0
         cov[IS, IK] += qk * d * d / 2.0

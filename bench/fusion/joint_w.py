@@ -94,6 +94,15 @@ def _step_age(e1, e):  # type: ignore[no-untyped-def]
 
 
 @njit(cache=True)
+def _restart_detector(m):  # type: ignore[no-untyped-def]
+    """The detector after it fired: its means from zero, nothing pending."""
+    m[M_WE] = 0.0
+    m[M_WE1] = 0.0
+    m[M_WPEND] = 0.0
+    m[M_HALF_T0] = math.nan
+
+
+@njit(cache=True)
 def _curve_detector(x, cov, m, p, nu, hk, bi, span, fresh):  # type: ignore[no-untyped-def]
     """A vertical curve's start or end under vibration: two cascaded moving means of the
     block innovations depart from zero by more than their learnt spread. Their ratio tells
@@ -161,18 +170,12 @@ def _curve_detector(x, cov, m, p, nu, hk, bi, span, fresh):  # type: ignore[no-u
                     cov[i, j] += di * dj
             # the age itself is uncertain: what s did meanwhile is not all carried by k
             cov[IS, IS] += (AGE_REL * ds) * (AGE_REL * ds)
-        m[M_WE] = 0.0
-        m[M_WE1] = 0.0
-        m[M_WPEND] = 0.0
-        m[M_HALF_T0] = math.nan
+        _restart_detector(m)
         m[M_WHOLD] = bi + 2.0 * tau
     elif bi == m[M_REWIND_AT]:
         # the replay after a rewind reaches the sample that fired: the detector starts
         # afresh from here, as it did then
-        m[M_WE] = 0.0
-        m[M_WE1] = 0.0
-        m[M_WPEND] = 0.0
-        m[M_HALF_T0] = math.nan
+        _restart_detector(m)
         m[M_REWIND_AT] = math.nan
     elif not big:
         if not half:
