@@ -1,4 +1,5 @@
-"""``python -m benchmarks [NAME ...] [--quick] [--json OUT] [--markdown OUT] [--only NAME ...]``
+"""``python -m benchmarks [NAME ...] [--quick] [--json OUT] [--markdown OUT] [--only NAME ...]
+[--random N [--seed S] [--scenarios-out DIR]]``
 
 Runs every measurement (or the NAMEs given, e.g. ``accuracy``), each in a fresh Python
 process, prints the table (figure, anchor, ratio, target, PASS/MISS) and the accuracy
@@ -6,7 +7,10 @@ tables per scenario with the machine it ran on, and writes it as JSON (default
 ``benchmarks/results.json``; a run of some measurements only replaces their figures there
 and keeps the others'). The full run takes 3-5 minutes on 2 cores; ``--quick`` (smaller
 files, short live runs) about one minute and is for smoke-testing the harness, not for
-quoting.
+quoting. ``accuracy --random N --seed S`` scores N drawn runs (seeds S .. S+N-1,
+benchmarks/random_runs.py) instead of the shipped scenarios, and writes their scenario
+files to ``--scenarios-out`` (default logs/random); the shipped table's figures stay in the
+JSON beside them.
 """
 
 from __future__ import annotations
@@ -26,6 +30,8 @@ from benchmarks.accuracy import is_accuracy
 from benchmarks.accuracy import markdown as accuracy_markdown
 from benchmarks.accuracy import print_tables as print_accuracy
 from benchmarks.common import ROOT, Figure, fmt_value, machine_info
+from benchmarks.random_accuracy import is_random, print_random
+from benchmarks.random_accuracy import markdown as random_markdown
 
 DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 
@@ -51,6 +57,13 @@ PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
         180,
     ),
 ]
+
+
+RANDOM_PLAN: dict[str, tuple[str, dict[str, Any], float]] = {
+    # measurement named on the command line -> (random measurement, quick kwargs, s per run)
+    "accuracy": ("random", {"n": 3}, 20.0),
+}
+"""What ``--random N`` turns a measurement into (not part of the full run)."""
 
 
 def run_worker(name: str, kwargs: dict[str, Any], timeout: float) -> list[Figure]:
@@ -99,7 +112,8 @@ def print_table(
     if not console.is_terminal:  # piped or in CI: room for the whole table
         console = Console(width=150)
     accuracy_figures = [f for f in figures if is_accuracy(f)]
-    figures = [f for f in figures if not is_accuracy(f)]
+    random_figures = [f for f in figures if is_random(f)]
+    figures = [f for f in figures if not is_accuracy(f) and not is_random(f)]
     title = "gradient bench benchmarks" + (
         " (--quick: smoke test, not for quoting)" if quick else ""
     )
@@ -123,7 +137,8 @@ def print_table(
             f.target_text(),
             f"[{style[f.status]}]{f.status}[/]",
         )
-    console.print(table)
+    if figures:
+        console.print(table)
     for f in figures:
         note = f.error or f.detail
         if note:
@@ -131,6 +146,8 @@ def print_table(
             console.print(f"  [bold]{f.label}[/]: {note}{anchor}", highlight=False)
     if accuracy_figures:
         print_accuracy(accuracy_figures, console)
+    if random_figures:
+        print_random(random_figures, console)
     console.print(machine_line(machine) + f"; total {elapsed:.0f} s", highlight=False)
 
 
@@ -145,13 +162,14 @@ def machine_line(m: dict[str, Any]) -> str:
 
 
 def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
-    lines = [
-        "| figure | value | anchor (same run, same file) | ratio | target | result |",
-        "|---|---:|---:|---:|---|---|",
-    ]
-    for f in figures:
-        if is_accuracy(f):
-            continue
+    lines = []
+    general = [f for f in figures if not is_accuracy(f) and not is_random(f)]
+    if general:
+        lines += [
+            "| figure | value | anchor (same run, same file) | ratio | target | result |",
+            "|---|---:|---:|---:|---|---|",
+        ]
+    for f in general:
         anchor = _anchor_text(f)
         if f.anchor_label and f.anchor is not None:
             anchor = f"{anchor} ({f.anchor_label})"
@@ -163,6 +181,9 @@ def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
     accuracy = accuracy_markdown(figures)
     if accuracy:
         lines += [accuracy]
+    randoms = [f for f in figures if is_random(f)]
+    if randoms:
+        lines += [random_markdown(randoms)]
     lines.append(f"{when}, {machine_line(machine)}.")
     return "\n".join(lines) + "\n"
 
@@ -191,7 +212,31 @@ def _measurement_of(fig: dict[str, Any]) -> str:
         return "live_rate"
     if key.startswith(("replay_", "read_", "mcap_", "pipeline_")):
         return "replay"
+    if key.startswith("random_"):
+        return "random"
     return key.split("_", 1)[0]
+
+
+def random_plan(
+    args: argparse.Namespace, selected: set[str]
+) -> tuple[list[tuple[str, dict[str, Any], dict[str, Any], float]], set[str]]:
+    """The measurements ``--random`` runs: each selected one RANDOM_PLAN knows (all of
+    them when none is named), on seeds --seed .. --seed + N - 1."""
+    chosen = selected or set(RANDOM_PLAN)
+    unknown = sorted(chosen - set(RANDOM_PLAN))
+    if unknown:
+        raise SystemExit(
+            f"python -m benchmarks: error: --random applies to {', '.join(RANDOM_PLAN)}, "
+            f"not {unknown[0]}"
+        )
+    plan = []
+    for name in sorted(chosen):
+        random_name, quick, per_run = RANDOM_PLAN[name]
+        full = {"n": args.random, "seed": args.seed}
+        if args.scenarios_out:
+            full["scenarios_out"] = args.scenarios_out
+        plan.append((random_name, full, {**full, **quick}, 120.0 + per_run * args.random))
+    return plan, {p[0] for p in plan}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -207,17 +252,38 @@ def main(argv: list[str] | None = None) -> int:
         help=f"run only these measurements ({', '.join(names)}); default: all",
     )
     ap.add_argument("--only", nargs="+", choices=names, help="the same as NAMEs")
+    ap.add_argument(
+        "--random",
+        type=int,
+        metavar="N",
+        help="score N drawn runs instead of the shipped scenarios (accuracy)",
+    )
+    ap.add_argument(
+        "--seed", type=int, default=5000, metavar="S", help="first seed of --random (5000)"
+    )
+    ap.add_argument(
+        "--scenarios-out",
+        metavar="DIR",
+        help="where --random writes the drawn scenarios (default logs/random)",
+    )
     args = ap.parse_args(argv)
+    if args.random is not None and args.random < 1:
+        ap.error(f"--random must be at least 1, got {args.random}")
+    if args.seed < 0:
+        ap.error(f"--seed must be >= 0, got {args.seed}")
     unknown = sorted(set(args.names) - set(names))
     if unknown:
         ap.error(f"unknown measurement {unknown[0]!r} (expected one of {', '.join(names)})")
     selected = set(args.names) | set(args.only or ())
+    plan = PLAN
+    if args.random is not None:
+        plan, selected = random_plan(args, selected)
     machine = machine_info()
     started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.monotonic()
     figures: list[Figure] = []
     runs = []
-    for name, full, quick, timeout in PLAN:
+    for name, full, quick, timeout in plan:
         if selected and name not in selected:
             continue
         kwargs = quick if args.quick else full

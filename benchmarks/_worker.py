@@ -60,6 +60,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import accuracy
 
         return accuracy.measure(log=_log, **kwargs)
+    if name == "random":
+        from benchmarks import random_accuracy
+
+        return random_accuracy.measure(log=_log, **kwargs)
     if name == "rec_toggle":
         from benchmarks import rec_toggle
 

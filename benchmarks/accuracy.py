@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import math
 import tomllib
-from collections.abc import Iterator
-from dataclasses import dataclass, fields, replace
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -77,6 +77,7 @@ class Run:
     reference: np.ndarray  # reference gradient, NaN when invalid
     estimator: np.ndarray  # gradient_signed, NaN when unavailable
     sigma: np.ndarray | None  # gradient_sigma, when the results have it
+    columns: dict[str, np.ndarray] = field(default_factory=dict)  # extra result columns asked for
 
 
 def scenario_config(sc: Any) -> Any:
@@ -162,22 +163,35 @@ def replay_told(name: str) -> Run:
         estimator_module.JointFilter = real  # type: ignore[misc]
 
 
-def replay_run(name: str, **settings: float) -> Run:
+def with_settings(config: Any, settings: dict[str, Any]) -> Any:
+    """``config`` with some settings overridden: a field of the config itself
+    (``gradient_sigma_limit_permil``) or of its estimator settings (``curve_rewind_s``)."""
+    if not settings:
+        return config
+    top = {f.name for f in fields(config)} - {"estimator", "channels"}
+    est = {f.name for f in fields(config.estimator)}
+    unknown = sorted(set(settings) - top - est)
+    if unknown:
+        raise TypeError(f"unknown setting {unknown[0]!r} (not in Config or EstimatorSettings)")
+    estimator = replace(config.estimator, **{k: v for k, v in settings.items() if k in est})
+    return replace(config, estimator=estimator, **{k: v for k, v in settings.items() if k in top})
+
+
+def replay_run(name: str, **settings: Any) -> Run:
     """Emulate a scenario and replay its frames through the bench's pipeline; ``settings``
-    override the calibration's estimator settings (``curve_rewind_s=0.0``, ...)."""
+    override the calibration's settings (``curve_rewind_s=0.0``, ...: :func:`with_settings`)."""
     sim, config = emulate(name)
-    if settings:
-        est = replace(config.estimator, **settings)
-        config = replace(config, estimator=est)
-    return _replay(name, sim, config)
+    return _replay(name, sim, with_settings(config, settings))
 
 
-def _replay(name: str, sim: Any, config: Any) -> Run:
+def _replay(name: str, sim: Any, config: Any, extra: Sequence[str] = ()) -> Run:
+    """Replay ``sim``'s frames; ``extra`` result columns are kept too (those the results have)."""
     from bench.pipeline.steps import Pipeline
     from bench.replay.run import run_steps
 
     counter0 = int(sim.truth["counter"][0]) if len(sim.truth) else 0
     cols: dict[str, list[np.ndarray]] = {"n": [], "gradient": [], "signed": [], "sigma": []}
+    more: dict[str, list[np.ndarray]] = {}
     has_sigma = False
     for step in run_steps(Pipeline(config), _batches(sim.frames)):
         res = step.results
@@ -190,6 +204,9 @@ def _replay(name: str, sim: Any, config: Any) -> Run:
         cols["signed"].append(res["gradient_signed"].copy())
         if "gradient_sigma" in names:
             cols["sigma"].append(res["gradient_sigma"].copy())
+        for col in extra:
+            if col in names:
+                more.setdefault(col, []).append(res[col].copy())
     joined = {k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()}
     return Run(
         name=name,
@@ -199,6 +216,7 @@ def _replay(name: str, sim: Any, config: Any) -> Run:
         reference=joined["gradient"],
         estimator=joined["signed"],
         sigma=joined["sigma"] if has_sigma else None,
+        columns={k: np.concatenate(v) for k, v in more.items()},
     )
 
 
