@@ -2,24 +2,35 @@
 
 Model (ICD section 3) per channel i, with a per-channel offset b_i in m/s^2:
 
-    a_i = a * cos(theta_i) + g * sin(alpha + theta_i) + b_i
+    a_i = a * cos(theta_i) + g * sin(alpha + theta_i) + c * sin(theta_i) + b_i
 
 fitted by Gauss-Newton least squares to block means of the recording (blocks of
-``BLOCK_S``: they average noise and vibration, and their scatter gives honest uncertainties).
-Three references say what is known about a and alpha in each block:
+``BLOCK_S``: they average noise and vibration), where c is the car's acceleration normal to
+the track (the v^2/R of a vertical curve; 0 at standstill and on a constant grade). Three
+references say what is known about a, alpha and c in each block:
 
-* ``level``: standstill on level track, a = 0 and alpha = 0. Offsets are not observable
+* ``level``: standstill on level track, a = 0, alpha = 0, c = 0. Offsets are not observable
   (one pose cannot tell a tilt from an offset), so only angles are fitted, against the
   config's offsets.
 * a tilt-table CSV: standstill on known gradients, one row per step
   (``start_s,end_s,gradient_permil`` on the results' time_s axis). Offsets become
   observable for pitched channels when the steps span enough gradient.
-* ``speed``: in motion against SPEED_REF, as in direction-cosine calibration: a = the
-  estimator's a_ref, alpha unknown per block (the track is not known) and eliminated as a
-  nuisance parameter. A common pitch of the whole board is observable only through the
+* ``speed``: in motion against SPEED_REF, as in direction-cosine calibration: a is the
+  odometer's acceleration (a centred derivative of the SPEED_REF speed, computed here, so
+  it does not lag), alpha unknown per block (the track is not known) and eliminated as a
+  nuisance parameter, and c = v^2 * d(alpha)/dx with d(alpha)/dx the slope of the fitted
+  alphas against the distance travelled (a local regression over ``CURVE_WINDOW_M``),
+  iterated with the fit. A common pitch of the whole board is observable only through the
   train's acceleration (a*cos(theta_i) turns with the board, gravity does not), so the
-  recording must accelerate and brake; blocks where a_ref is still settling after a change
-  of acceleration are left out.
+  recording must accelerate and brake; blocks where the acceleration is changing (a ramp,
+  a wheel-slide cycle, a SPEED_REF gap) are left out, and the block weights taper over
+  ``TAPER_S`` at each edge of a run of used blocks, so that the car body's vibration
+  cannot leak into the fit through hard edges.
+
+The stated uncertainties come from the scatter of the blocks' residuals with their
+correlation in time accounted for (a Newey-West estimate over ``HAC_S``): vibration, the
+odometer's noise through a and c, and what the curve model leaves are correlated over
+seconds, so independent-block statistics would understate them.
 
 Offsets are fitted where the data determines them to ``OFFSET_SIGMA_MAX``; elsewhere they
 stay at the config's values (and then bias the angle by about b / (g cos theta)). The
@@ -45,9 +56,28 @@ BLOCK_S = 0.25
 """Block length for the means the fit works on."""
 MIN_FILL = 0.8
 """A block needs this fraction of its samples with all three channels usable."""
-STEADY_WINDOW_S = (2.0, 0.5)
+STEADY_WINDOW_S = (1.0, 1.0)
 STEADY_MPS2 = 0.02
-"""speed: a block is used where a_ref changed by less than this from 2 s before to 0.5 s after."""
+"""speed: a block is used where the odometer's acceleration changed by less than this from
+1 s before to 1 s after (its latency, up to 0.1 s, then costs < 0.002 m/s^2)."""
+ACCEL_WINDOW_S = 0.5
+"""The odometer's acceleration: slope of a straight line through its speeds within this of
+each frame, both sides (a centred derivative: no lag, noise averaged over 1 s)."""
+ODOMETER_GAP_S = 0.2
+"""SPEED_REF frames further apart than this (50 Hz: 0.02 s) leave the speed unknown between."""
+CURVE_WINDOW_M = 20.0
+CURVE_WINDOW_S = 2.0
+"""c = v^2 d(alpha)/dx: the slope of the fitted alphas over this much track on each side, or
+over the distance run in CURVE_WINDOW_S if longer."""
+CURVE_SIGNIFICANCE = 4.0
+"""... kept where it exceeds this many of its own sigmas (else the track counts as straight)."""
+CURVE_ITER = 6
+TAPER_S = 1.0
+"""Block weights rise over this at each edge of a run of used blocks (a cosine taper)."""
+SCATTER_S = 4.0
+"""The blocks are weighted by 1 / their residuals' power over this on each side."""
+HAC_S = 16.0
+"""Correlation time the uncertainty allows for (Bartlett-weighted lags up to this)."""
 OFFSET_SIGMA_MAX = 2e-4
 """An offset is fitted only if the data pins it to this (m/s^2, 1 sigma, about 20 ug)."""
 ANGLE_SIGMA_MAX_DEG = 0.5
@@ -64,11 +94,18 @@ class Recording:
 
     time_s: np.ndarray  # board time from the first sample
     acc: np.ndarray  # (N, 3) calibrated with the starting config; NaN where not usable
-    a_ref: np.ndarray  # estimator's reference acceleration; NaN where unavailable
+    a_ref: np.ndarray  # the odometer's acceleration (odometer_accel); NaN where unknown
+    speed_mps: np.ndarray | None = None  # the latest SPEED_REF speed; NaN where unknown
 
     @property
     def has_speed_ref(self) -> bool:
         return bool(np.isfinite(self.a_ref).any())
+
+    @property
+    def speed(self) -> np.ndarray:
+        if self.speed_mps is None:
+            return np.where(self.a_ref == 0.0, 0.0, np.nan)
+        return self.speed_mps
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,18 +164,88 @@ class Fit:
 
 
 def record(batches: Iterable[SourceBatch], config: Config) -> Recording:
-    """Run a stream through the bench's pipeline and keep what calibration needs."""
+    """Run a stream through the bench's pipeline and keep what calibration needs: the
+    calibrated channels per sample, and the SPEED_REF frames' speeds, each placed at the
+    first sample that arrived after it (:func:`odometer_accel`)."""
     from bench.pipeline.steps import Pipeline
     from bench.replay.run import run_steps
 
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    speeds: list[tuple[np.ndarray, np.ndarray]] = []
     for step in run_steps(Pipeline(config), batches):
         r = step.results
         if len(r):
-            parts.append((r["time_s"], r["acc"], r["a_ref"]))
+            parts.append((r["time_s"], r["acc"], r["seq"]))
+        if len(step.speed):
+            speeds.append((step.speed["seq"], step.speed["speed"] / 1000.0))
     if not parts:
-        return Recording(np.zeros(0), np.zeros((0, 3)), np.zeros(0))
-    return Recording(*(np.concatenate(col) for col in zip(*parts, strict=True)))
+        return Recording(np.zeros(0), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
+    time_s, acc, seq = (np.concatenate(col) for col in zip(*parts, strict=True))
+    if speeds:
+        odo_seq, odo_v = (np.concatenate(col) for col in zip(*speeds, strict=True))
+    else:
+        odo_seq, odo_v = np.zeros(0, np.int64), np.zeros(0)
+    a, v = odometer_accel(time_s, seq, odo_seq, odo_v)
+    return Recording(time_s, acc, a, v)
+
+
+def window_sums(
+    columns: tuple[np.ndarray, ...], lo: np.ndarray, hi: np.ndarray
+) -> list[np.ndarray]:
+    """Per row k, the sum of each column over rows lo[k] .. hi[k] - 1 (prefix sums): the
+    moments of a sliding least-squares line."""
+    out = []
+    for x in columns:
+        c = np.concatenate([[0.0], np.cumsum(x)])
+        out.append(c[hi] - c[lo])
+    return out
+
+
+def odometer_accel(
+    time_s: np.ndarray, seq: np.ndarray, odo_seq: np.ndarray, odo_v: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(acceleration, speed) per sample from the SPEED_REF frames (arrival indices
+    ``odo_seq``, speeds ``odo_v`` in m/s) and the samples' board times and arrival indices.
+
+    A frame counts at the board time of the first sample whose last frame arrived after
+    it. Its acceleration is the slope of a least-squares line through the speeds within
+    ACCEL_WINDOW_S of it on both sides (it needs frames on both sides and no gap longer
+    than ODOMETER_GAP_S inside; exactly 0 where they all read 0). A sample takes the
+    latest frame's speed and the acceleration interpolated between frames; NaN where
+    unknown (before the first frame, in a gap)."""
+    n = len(time_s)
+    nan = np.full(n, np.nan)
+    anchor = np.searchsorted(seq, odo_seq, side="right")
+    keep = anchor < n
+    tau, v = time_s[anchor[keep]], odo_v[keep]
+    m = len(tau)
+    if m < 3:
+        return nan, nan.copy()
+    idx = np.arange(m)
+    lo = np.searchsorted(tau, tau - ACCEL_WINDOW_S, side="left")
+    hi = np.searchsorted(tau, tau + ACCEL_WINDOW_S, side="right")
+    t0 = tau - tau[0]
+    s1, st, sv, stt, stv = window_sums((np.ones(m), t0, v, t0 * t0, t0 * v), lo, hi)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = (stv - st * sv / s1) / (stt - st * st / s1)
+    after_gap = np.flatnonzero(np.diff(tau) > ODOMETER_GAP_S) + 1  # frames that follow a gap
+    broken = (
+        np.searchsorted(after_gap, hi, side="left") - np.searchsorted(after_gap, lo, side="right")
+    ) > 0
+    both = (lo < idx) & (hi > idx + 1)
+    (absolute,) = window_sums((np.abs(v),), lo, hi)
+    standing = absolute == 0.0
+    good = both & ~broken & np.isfinite(slope)
+    a_frame = np.where(standing, 0.0, np.where(good, slope, np.nan))
+    k = np.searchsorted(tau, time_s, side="right") - 1  # the latest frame at each sample
+    kk = np.clip(k, 0, m - 1)
+    nxt = np.minimum(kk + 1, m - 1)
+    fresh = (k >= 0) & (time_s - tau[kk] <= ODOMETER_GAP_S)
+    span = tau[nxt] - tau[kk]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(span > 0, np.clip((time_s - tau[kk]) / span, 0.0, 1.0), 0.0)
+    accel = np.where(fresh, a_frame[kk] * (1.0 - w) + a_frame[nxt] * w, np.nan)
+    return accel, np.where(fresh, v[kk], np.nan)
 
 
 def read_table(path: str | Path) -> np.ndarray:
@@ -174,26 +281,47 @@ def read_table(path: str | Path) -> np.ndarray:
     return np.array(rows, dtype=np.float64)
 
 
-def block_means(rec: Recording, keep: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Means per BLOCK_S block of the kept samples with all channels usable.
+@dataclass(frozen=True, slots=True)
+class Blocks:
+    """Means per BLOCK_S block (only blocks filled to MIN_FILL with usable samples)."""
 
-    Returns (block ids, mean acc (B, 3), mean a_ref (B,)) for blocks filled to MIN_FILL."""
+    ids: np.ndarray  # block index: floor(time_s / BLOCK_S)
+    acc: np.ndarray  # (B, 3) mean calibrated acceleration per channel
+    a: np.ndarray  # mean odometer acceleration
+    v2: np.ndarray  # mean squared speed
+    x: np.ndarray  # mean distance travelled since the start (m)
+
+
+def block_means(rec: Recording, keep: np.ndarray) -> Blocks:
+    """Means per BLOCK_S block of the kept samples with all channels usable."""
     rate = 1.0 / float(np.median(np.diff(rec.time_s))) if len(rec.time_s) > 1 else 0.0
+    speed = np.nan_to_num(rec.speed)
+    dt = np.diff(rec.time_s, prepend=rec.time_s[:1])
+    x = np.cumsum(speed * dt)
     ok = keep & np.isfinite(rec.acc).all(axis=1)
     block = np.floor(rec.time_s[ok] / BLOCK_S).astype(np.int64)
     ids, inverse, counts = np.unique(block, return_inverse=True, return_counts=True)
-    acc = np.zeros((len(ids), 3))
-    for k in range(3):
-        acc[:, k] = np.bincount(inverse, rec.acc[ok, k], len(ids)) / counts
-    a_ref = np.bincount(inverse, np.nan_to_num(rec.a_ref[ok]), len(ids)) / counts
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.bincount(inverse, values, len(ids)) / counts
+
+    acc = (
+        np.column_stack([mean(rec.acc[ok, k]) for k in range(3)]) if len(ids) else np.zeros((0, 3))
+    )
     full = counts >= MIN_FILL * BLOCK_S * rate
-    return ids[full], acc[full], a_ref[full]
+    return Blocks(
+        ids[full],
+        acc[full],
+        mean(np.nan_to_num(rec.a_ref[ok]))[full],
+        mean(speed[ok] ** 2)[full],
+        mean(x[ok])[full],
+    )
 
 
 def steady(rec: Recording) -> np.ndarray:
-    """Samples in blocks where a_ref is available and settled: it varies by less than
-    STEADY_MPS2 from STEADY_WINDOW_S[0] before the block to STEADY_WINDOW_S[1] after it
-    (the causal filter needs a moment to follow a change of acceleration)."""
+    """Samples in blocks where the odometer's acceleration is known and steady: it varies
+    by less than STEADY_MPS2 from STEADY_WINDOW_S[0] before the block to STEADY_WINDOW_S[1]
+    after it (not in a ramp of traction or braking, a wheel-slide or slip cycle, a gap)."""
     if len(rec.time_s) == 0:
         return np.zeros(0, dtype=bool)
     fin = np.isfinite(rec.a_ref)
@@ -238,31 +366,47 @@ def _solve(
     g: float,
     theta: np.ndarray,
     fit_offset: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    normal_accel: np.ndarray | None = None,
+    weights: np.ndarray | None = None,
+    ids: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
     """Gauss-Newton for theta (3) and the offsets marked in fit_offset; alpha per block is a
-    nuisance (eliminated by projection) when free_alpha.
+    nuisance (eliminated by projection) when free_alpha; ``normal_accel`` (c per block) is
+    known. ``weights`` weigh the blocks; with ``ids`` (block indices in time) the
+    covariance counts the residuals' correlation over HAC_S (Newey-West), else it takes
+    them as independent.
 
-    Returns (theta, offsets (3,), covariance of the parameters, rms residual)."""
+    Returns (theta, offsets (3,), covariance of the parameters, rms residual, alpha,
+    unweighted residuals (B, 3))."""
     nb = len(m)
     off_idx = np.flatnonzero(fit_offset)
     n_par = 3 + len(off_idx)
+    c = np.zeros(nb) if normal_accel is None else normal_accel
+    sw = np.ones(nb) if weights is None else np.sqrt(weights)
     theta = theta.copy()
     b = np.zeros(3)
     alpha = alpha.copy()
     jac = np.zeros((nb, 3, n_par))
+
+    def residual(alpha: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        phi = alpha[:, None] + theta[None, :]
+        pred = a[:, None] * np.cos(theta) + g * np.sin(phi) + c[:, None] * np.sin(theta)
+        return (m - pred - b) * sw[:, None]
+
     for _ in range(MAX_ITER):
         phi = alpha[:, None] + theta[None, :]
-        r = m - (a[:, None] * np.cos(theta) + g * np.sin(phi) + b)
+        r = residual(alpha, theta)
         for i in range(3):
-            jac[:, i, i] = -a * np.sin(theta[i]) + g * np.cos(phi[:, i])
+            jac[:, i, i] = -a * np.sin(theta[i]) + g * np.cos(phi[:, i]) + c * np.cos(theta[i])
+            jac[:, i, i] *= sw
         for col, i in enumerate(off_idx):
-            jac[:, i, 3 + col] = 1.0
+            jac[:, i, 3 + col] = sw
         jp, rp = jac, r
         if free_alpha:
-            c = g * np.cos(phi)
-            cn = c / np.linalg.norm(c, axis=1, keepdims=True)
-            jp = jac - cn[:, :, None] * np.einsum("ji,jip->jp", cn, jac)[:, None, :]
-            rp = r - cn * np.einsum("ji,ji->j", cn, r)[:, None]
+            grav = g * np.cos(phi) * sw[:, None]
+            gn = grav / np.linalg.norm(grav, axis=1, keepdims=True)
+            jp = jac - gn[:, :, None] * np.einsum("ji,jip->jp", gn, jac)[:, None, :]
+            rp = r - gn * np.einsum("ji,ji->j", gn, r)[:, None]
         normal = np.einsum("jip,jiq->pq", jp, jp)
         rhs = np.einsum("jip,ji->p", jp, rp)
         try:
@@ -271,22 +415,109 @@ def _solve(
             raise Undetermined from None
         if free_alpha:
             resid = r - np.einsum("jip,p->ji", jac, step)
-            alpha = alpha + np.einsum("ji,ji->j", c, resid) / np.einsum("ji,ji->j", c, c)
+            alpha = alpha + np.einsum("ji,ji->j", grav, resid) / np.einsum("ji,ji->j", grav, grav)
         theta = theta + step[:3]
         b[off_idx] += step[3:]
         if np.max(np.abs(step)) < 1e-13:
             break
-    phi = alpha[:, None] + theta[None, :]
-    r = m - (a[:, None] * np.cos(theta) + g * np.sin(phi) + b)
+    else:
+        if np.max(np.abs(step)) > 1e-9:  # still moving: no solution the data settles on
+            raise Undetermined
+    r = residual(alpha, theta)
     dof = 3 * nb - n_par - (nb if free_alpha else 0)
     if dof <= 0:
         raise BenchError(f"calibration: {nb} blocks are too few to fit {n_par} parameters")
     rss = float(np.sum(r * r))
     try:
-        cov = np.linalg.inv(normal) * (rss / dof)
+        inv = np.linalg.inv(normal)
     except np.linalg.LinAlgError:
         raise Undetermined from None
-    return theta, b, cov, math.sqrt(rss / (3 * nb))
+    cov = inv * (rss / dof)
+    if ids is not None:
+        rp = r - gn * np.einsum("ji,ji->j", gn, r)[:, None] if free_alpha else r
+        scores = np.einsum("jip,ji->jp", jp, rp)
+        lags = round(HAC_S / BLOCK_S)
+        hac = inv @ newey_west(scores, ids, lags) @ inv
+        hac *= 3 * nb / dof
+        # few blocks make the lagged sums unreliable: then never claim less than independent
+        # blocks would give (with many, a tone's cancelling lags may rightly give less)
+        cov = hac if nb >= 4 * lags else np.maximum(cov, hac)
+    plain = r / sw[:, None]
+    rms = math.sqrt(float(np.sum(plain**2)) / (3 * nb))
+    return theta, b, cov, rms, alpha, plain
+
+
+def newey_west(scores: np.ndarray, ids: np.ndarray, lags: int) -> np.ndarray:
+    """sum_j s_j s_j' plus the Bartlett-weighted cross products of scores up to ``lags``
+    block indices apart (blocks missing in between count as zero scores)."""
+    span = int(ids.max() - ids.min()) + 1
+    full = np.zeros((span, scores.shape[1]))
+    full[ids - ids.min()] = scores
+    out = full.T @ full
+    for lag in range(1, min(lags, span - 1) + 1):
+        cross = full[:-lag].T @ full[lag:]
+        out += (1.0 - lag / (lags + 1)) * (cross + cross.T)
+    return out
+
+
+def curvature(alpha: np.ndarray, x: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """d(alpha)/dx at each block: the slope of a straight line through the blocks' alphas
+    along the track within CURVE_WINDOW_M of it, or the distance run in CURVE_WINDOW_S if
+    longer (the alphas carry the odometer's noise, correlated over about a second), kept
+    only where it stands out of that line's scatter (CURVE_SIGNIFICANCE sigma): 0 on a
+    straight grade, while standing, or where the blocks span less than a quarter of the
+    window."""
+    order = np.argsort(x, kind="stable")
+    xs, al = x[order], alpha[order]
+    half = np.maximum(CURVE_WINDOW_M, np.abs(speed[order]) * CURVE_WINDOW_S)
+    lo = np.searchsorted(xs, xs - half, side="left")
+    hi = np.searchsorted(xs, xs + half, side="right")
+    x0 = xs - xs[0]
+    a0 = al - np.median(al)
+    n, sx, sa, sxx, sxa, saa = window_sums(
+        (np.ones(len(xs)), x0, a0, x0 * x0, x0 * a0, a0 * a0), lo, hi
+    )
+    sxx_c = sxx - sx * sx / n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = (sxa - sx * sa / n) / sxx_c
+        ssr = np.maximum(saa - sa * sa / n - slope * slope * sxx_c, 0.0)
+        sigma = np.sqrt(ssr / np.maximum(n - 2.0, 1.0) / sxx_c)
+        wide = sxx_c / n > (half / 4.0) ** 2 / 3.0  # spread of a line of blocks >= W/4 long
+        keep = wide & np.isfinite(slope) & (np.abs(slope) > CURVE_SIGNIFICANCE * sigma)
+    out = np.zeros(len(x))
+    out[order] = np.where(keep, slope, 0.0)
+    return out
+
+
+def scatter_weights(resid: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """1 / the local power of the fit's residuals (a running mean over SCATTER_S of each
+    block's residual sum of squares, relative to the quietest blocks'): the car body's
+    vibration grows with speed, so a block at 3 m/s says far more than one at 30 m/s."""
+    power = np.sum(resid * resid, axis=1)
+    span = int(ids.max() - ids.min()) + 1
+    full = np.zeros(span)
+    have = np.zeros(span)
+    full[ids - ids.min()] = power
+    have[ids - ids.min()] = 1.0
+    half = round(SCATTER_S / BLOCK_S)
+    kernel = np.ones(2 * half + 1)
+    local = np.convolve(full, kernel, "same") / np.maximum(np.convolve(have, kernel, "same"), 1.0)
+    local = local[ids - ids.min()]
+    floor = max(float(np.percentile(local, 10)), 1e-12)
+    return floor / np.maximum(local, floor)
+
+
+def taper(ids: np.ndarray) -> np.ndarray:
+    """Weights of the blocks: rising as a raised cosine over TAPER_S from each edge of a
+    run of consecutive blocks, 1 inside."""
+    if not len(ids):
+        return np.ones(0)
+    new_run = np.concatenate([[True], np.diff(ids) > 1])
+    run = np.cumsum(new_run) - 1
+    start = ids[new_run][run]
+    end = ids[np.concatenate([new_run[1:], [True]])][run]
+    edge = (np.minimum(ids - start, end - ids) + 0.5) * BLOCK_S
+    return 0.5 * (1.0 - np.cos(np.pi * np.clip(edge / TAPER_S, 0.0, 1.0)))
 
 
 def calibrate(
@@ -306,7 +537,7 @@ def calibrate(
             "calibration: no SPEED_REF in the recording; use --reference level or a table"
         )
     n = len(rec.time_s)
-    standstill = rec.a_ref == 0.0 if rec.has_speed_ref else np.ones(n, dtype=bool)
+    standstill = rec.speed == 0.0 if rec.has_speed_ref else np.ones(n, dtype=bool)
     if reference == "speed":
         keep = steady(rec)
         name = "SPEED_REF (in motion)"
@@ -320,7 +551,8 @@ def calibrate(
             keep |= (rec.time_s >= start) & (rec.time_s < end)
         keep &= standstill
         name = f"tilt-table steps ({len(table)})"
-    ids, m, a = block_means(rec, keep)
+    blocks = block_means(rec, keep)
+    ids, m, a = blocks.ids, blocks.acc, blocks.a
     if len(ids) < 2:
         raise BenchError(f"calibration: too little usable data against the {name}")
     g = config.g
@@ -338,10 +570,30 @@ def calibrate(
         row = np.clip(np.searchsorted(table[:, 0], centre, side="right") - 1, 0, None)
         alpha = np.arctan(table[row, 2] / 1000.0)
     fit_offset = np.full(3, reference != "level")
-    hint = "; it needs more acceleration and braking" if reference == "speed" else ""
+    moving = reference == "speed"
+    hint = "; it needs more acceleration and braking" if moving else ""
+    weights = taper(ids) if moving else None
+
+    def fit(fit_offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """The fit; in motion iterated with c = v^2 d(alpha)/dx from its own alphas."""
+        c = np.zeros(len(ids))
+        w = weights
+        for it in range(CURVE_ITER if moving else 1):
+            theta, b, cov, rms, fitted, resid = _solve(
+                m, a, alpha, moving, g, theta0, fit_offset, c, w, ids
+            )
+            if not moving:
+                break
+            c_new = blocks.v2 * curvature(fitted, blocks.x, np.sqrt(blocks.v2))
+            w_new = weights * scatter_weights(resid, ids)
+            if (np.max(np.abs(c_new - c)) < 1e-5 and it > 0) or it == CURVE_ITER - 1:
+                break
+            c, w = c_new, w_new
+        return theta, b, cov, rms
+
     while True:
         try:
-            theta, b, cov, rms = _solve(m, a, alpha, reference == "speed", g, theta0, fit_offset)
+            theta, b, cov, rms = fit(fit_offset)
         except Undetermined:
             if fit_offset.any():  # offsets first: they are the usual reason
                 fit_offset[:] = False

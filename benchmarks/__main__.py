@@ -29,6 +29,8 @@ from benchmarks._worker import MARKER, PARTIAL
 from benchmarks.accuracy import is_accuracy
 from benchmarks.accuracy import markdown as accuracy_markdown
 from benchmarks.accuracy import print_tables as print_accuracy
+from benchmarks.calibration import is_calibration, print_calibration
+from benchmarks.calibration import markdown as calibration_markdown
 from benchmarks.common import ROOT, Figure, fmt_value, machine_info
 from benchmarks.random_accuracy import is_random, print_random
 from benchmarks.random_accuracy import markdown as random_markdown
@@ -62,8 +64,10 @@ PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
 RANDOM_PLAN: dict[str, tuple[str, dict[str, Any], float]] = {
     # measurement named on the command line -> (random measurement, quick kwargs, s per run)
     "accuracy": ("random", {"n": 3}, 20.0),
+    "calibration": ("calibration", {"n": 3}, 20.0),
 }
-"""What ``--random N`` turns a measurement into (not part of the full run)."""
+"""What ``--random N`` turns a measurement into; ``calibration`` is only ever random (50
+runs from seed 5000 without ``--random``). Neither is part of the full run."""
 
 
 def run_worker(name: str, kwargs: dict[str, Any], timeout: float) -> list[Figure]:
@@ -113,6 +117,7 @@ def print_table(
         console = Console(width=150)
     accuracy_figures = [f for f in figures if is_accuracy(f)]
     random_figures = [f for f in figures if is_random(f)]
+    calibration_rows = [f for f in figures if is_calibration(f)]
     figures = [f for f in figures if not is_accuracy(f) and not is_random(f)]
     title = "gradient bench benchmarks" + (
         " (--quick: smoke test, not for quoting)" if quick else ""
@@ -148,6 +153,8 @@ def print_table(
         print_accuracy(accuracy_figures, console)
     if random_figures:
         print_random(random_figures, console)
+    if calibration_rows:
+        print_calibration(calibration_rows, console)
     console.print(machine_line(machine) + f"; total {elapsed:.0f} s", highlight=False)
 
 
@@ -184,6 +191,9 @@ def markdown(figures: list[Figure], machine: dict[str, Any], when: str) -> str:
     randoms = [f for f in figures if is_random(f)]
     if randoms:
         lines += [random_markdown(randoms)]
+    calibration_rows = [f for f in figures if is_calibration(f)]
+    if calibration_rows:
+        lines += [calibration_markdown(calibration_rows)]
     lines.append(f"{when}, {machine_line(machine)}.")
     return "\n".join(lines) + "\n"
 
@@ -220,22 +230,31 @@ def _measurement_of(fig: dict[str, Any]) -> str:
 def random_plan(
     args: argparse.Namespace, selected: set[str]
 ) -> tuple[list[tuple[str, dict[str, Any], dict[str, Any], float]], set[str]]:
-    """The measurements ``--random`` runs: each selected one RANDOM_PLAN knows (all of
-    them when none is named), on seeds --seed .. --seed + N - 1."""
+    """The measurements to run when random ones are asked for: with ``--random N`` each
+    selected one RANDOM_PLAN knows (all of them when none is named) on seeds --seed ..
+    --seed + N - 1; without it, ``calibration`` on 50 runs from --seed and the rest as
+    PLAN has them."""
+    n = args.random if args.random is not None else 50
     chosen = selected or set(RANDOM_PLAN)
-    unknown = sorted(chosen - set(RANDOM_PLAN))
-    if unknown:
-        raise SystemExit(
-            f"python -m benchmarks: error: --random applies to {', '.join(RANDOM_PLAN)}, "
-            f"not {unknown[0]}"
-        )
+    if args.random is not None:
+        unknown = sorted(chosen - set(RANDOM_PLAN))
+        if unknown:
+            raise SystemExit(
+                f"python -m benchmarks: error: --random applies to {', '.join(RANDOM_PLAN)}, "
+                f"not {unknown[0]}"
+            )
     plan = []
-    for name in sorted(chosen):
+    for name, full, quick, timeout in PLAN:
+        if name in chosen and (args.random is None or name not in RANDOM_PLAN):
+            plan.append((name, full, quick, timeout))
+    for name in sorted(chosen & set(RANDOM_PLAN)):
+        if args.random is None and any(p[0] == name for p in PLAN):
+            continue
         random_name, quick, per_run = RANDOM_PLAN[name]
-        full = {"n": args.random, "seed": args.seed}
-        if args.scenarios_out:
+        full = {"n": n, "seed": args.seed}
+        if args.scenarios_out and random_name == "random":
             full["scenarios_out"] = args.scenarios_out
-        plan.append((random_name, full, {**full, **quick}, 120.0 + per_run * args.random))
+        plan.append((random_name, full, {**full, **quick}, 120.0 + per_run * n))
     return plan, {p[0] for p in plan}
 
 
@@ -244,7 +263,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="~1 minute smoke run (small files)")
     ap.add_argument("--json", metavar="OUT", default=str(DEFAULT_JSON), help="results file")
     ap.add_argument("--markdown", metavar="OUT", help="also write the table as Markdown")
-    names = sorted({p[0] for p in PLAN})
+    names = sorted({p[0] for p in PLAN} | set(RANDOM_PLAN))
     ap.add_argument(
         "names",
         nargs="*",
@@ -276,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown measurement {unknown[0]!r} (expected one of {', '.join(names)})")
     selected = set(args.names) | set(args.only or ())
     plan = PLAN
-    if args.random is not None:
+    if args.random is not None or "calibration" in selected:
         plan, selected = random_plan(args, selected)
     machine = machine_info()
     started = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")

@@ -64,6 +64,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import random_accuracy
 
         return random_accuracy.measure(log=_log, **kwargs)
+    if name == "calibration":
+        from benchmarks import calibration
+
+        return calibration.measure(log=_log, **kwargs)
     if name == "rec_toggle":
         from benchmarks import rec_toggle
 

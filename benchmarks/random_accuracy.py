@@ -382,25 +382,26 @@ def describe(
 
 
 # ------------------------------------------------------------------------------ many runs
-def _score(args: tuple[int, dict[str, Any]]) -> dict[str, Any]:
-    seed, settings = args
-    return score_seed(seed, **settings)
+def in_parallel(fn: Any, seeds: Iterable[int], processes: int = 2, **kwargs: Any) -> list[Any]:
+    """``[fn(seed, **kwargs) for seed in seeds]`` over ``processes`` worker processes
+    (spawned: each loads the estimator's compiled kernel from numba's cache); the longest
+    runs start first so that the workers finish together. ``fn`` must be a module-level
+    function (it is pickled)."""
+    seeds = list(seeds)
+    if processes <= 1 or len(seeds) <= 1:
+        return [fn(s, **kwargs) for s in seeds]
+    order = sorted(seeds, key=lambda s: -draw(s).samples)
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=processes, mp_context=ctx) as pool:
+        futures = {s: pool.submit(fn, s, **kwargs) for s in order}
+        return [futures[s].result() for s in seeds]
 
 
 def random_scores(
     seeds: Iterable[int], processes: int = 2, **settings: Any
 ) -> list[dict[str, Any]]:
-    """:func:`score_seed` of every seed, in ``processes`` worker processes (spawned: each
-    loads the estimator's compiled kernel from numba's cache), in seed order. The longest
-    runs start first so that the workers finish together."""
-    seeds = list(seeds)
-    if processes <= 1 or len(seeds) <= 1:
-        return [score_seed(s, **settings) for s in seeds]
-    order = sorted(seeds, key=lambda s: -draw(s).samples)
-    ctx = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=processes, mp_context=ctx) as pool:
-        done = dict(zip(order, pool.map(_score, [(s, settings) for s in order]), strict=True))
-    return [done[s] for s in seeds]
+    """:func:`score_seed` of every seed, in seed order, over ``processes`` processes."""
+    return in_parallel(score_seed, seeds, processes, **settings)
 
 
 def distribution(values: Sequence[float | None], op: str) -> dict[str, float | None]:

@@ -155,3 +155,22 @@ def test_random_figures_are_a_measurement_of_their_own() -> None:
     plan, selected = harness.random_plan(args, {"accuracy"})
     assert selected == {"random"}
     assert plan[0][:2] == ("random", {"n": 4, "seed": 1000})
+
+
+def test_calibration_figures_count_runs_within_and_honest() -> None:
+    from benchmarks.calibration import figures as calibration_figures
+
+    runs = [
+        {"seed": 1, "odometer": "usable", "error_deg": [0.005, -0.002, 0.0],
+         "sigma_deg": [0.002, 0.002, 0.004], "within": True, "honest": True},
+        {"seed": 2, "odometer": "poor", "error_deg": [0.02, 0.01, -0.004],
+         "sigma_deg": [0.005, 0.01, 0.01], "within": False, "honest": False},
+        {"seed": 3, "odometer": "absent", "refused": "calibration: no SPEED_REF",
+         "within": False, "honest": True},
+    ]  # fmt: skip
+    figs = {f.key: f for f in calibration_figures(runs, 1, 1.0, 2)}
+    assert figs["calibration_within"].value == 1 and figs["calibration_within"].target == 3
+    assert figs["calibration_honest"].value == 2 and figs["calibration_honest"].status == "MISS"
+    assert figs["calibration_worst_error"].value == pytest.approx(0.02)
+    assert figs["calibration_worst_ratio"].value == pytest.approx(4.0)
+    assert harness._measurement_of({"key": "calibration_within"}) == "calibration"

@@ -67,6 +67,7 @@ IN_MOTION = {
     "seed": 32,
     "duration_s": 250.0,
     "vertical_curve_m": 120.0,
+    "vertical_curve_accel": True,  # a real car feels the v^2/R of its vertical curves
     "track": [
         {"length_m": 800.0, "gradient_permil": 0.0},
         {"length_m": 1200.0, "gradient_permil": 12.0},
@@ -108,7 +109,7 @@ def test_motion_against_speed_ref_gives_the_as_built_angles() -> None:
     rec = recording(IN_MOTION)
     fit = calibrate(rec, Config(), "speed")
     assert_recovered(fit)
-    # blocks right after a change of acceleration (a_ref still settling) are left out
+    # blocks in a ramp of traction or braking (the acceleration changing) are left out
     used = steady(rec)
     assert 0.3 < used.mean() < 0.9
 
