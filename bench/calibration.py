@@ -72,6 +72,8 @@ over the distance run in CURVE_WINDOW_S if longer."""
 CURVE_SIGNIFICANCE = 4.0
 """... kept where it exceeds this many of its own sigmas (else the track counts as straight)."""
 CURVE_ITER = 6
+CURVE_MODEL_SHARE = 0.3
+"""The modelled c counts as known to this share of the largest c nearby (1 sigma)."""
 TAPER_S = 1.0
 """Block weights rise over this at each edge of a run of used blocks (a cosine taper)."""
 SCATTER_S = 4.0
@@ -369,12 +371,14 @@ def _solve(
     normal_accel: np.ndarray | None = None,
     weights: np.ndarray | None = None,
     ids: np.ndarray | None = None,
+    normal_sigma: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
     """Gauss-Newton for theta (3) and the offsets marked in fit_offset; alpha per block is a
     nuisance (eliminated by projection) when free_alpha; ``normal_accel`` (c per block) is
     known. ``weights`` weigh the blocks; with ``ids`` (block indices in time) the
     covariance counts the residuals' correlation over HAC_S (Newey-West), else it takes
-    them as independent.
+    them as independent, and ``normal_sigma`` (1 sigma of c per block, correlated like
+    the residuals) adds what an error of c would move the parameters by.
 
     Returns (theta, offsets (3,), covariance of the parameters, rms residual, alpha,
     unweighted residuals (B, 3))."""
@@ -442,6 +446,9 @@ def _solve(
         # few blocks make the lagged sums unreliable: then never claim less than independent
         # blocks would give (with many, a tone's cancelling lags may rightly give less)
         cov = hac if nb >= 4 * lags else np.maximum(cov, hac)
+        if normal_sigma is not None:  # d(residual)/dc = -sin(theta) (weighted, projected)
+            q = np.einsum("jip,i->jp", jp, np.sin(theta)) * (sw * normal_sigma)[:, None]
+            cov = cov + inv @ newey_west(q, ids, lags) @ inv
     plain = r / sw[:, None]
     rms = math.sqrt(float(np.sum(plain**2)) / (3 * nb))
     return theta, b, cov, rms, alpha, plain
@@ -487,6 +494,21 @@ def curvature(alpha: np.ndarray, x: np.ndarray, speed: np.ndarray) -> np.ndarray
     out = np.zeros(len(x))
     out[order] = np.where(keep, slope, 0.0)
     return out
+
+
+def curve_sigma(c: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """1 sigma of the modelled c per block: CURVE_MODEL_SHARE of the largest |c| within
+    CURVE_WINDOW_S of it (the line through the alphas blurs a curve's ends, where c
+    steps)."""
+    if not len(ids):
+        return np.zeros(0)
+    span = int(ids.max() - ids.min()) + 1
+    full = np.zeros(span)
+    full[ids - ids.min()] = np.abs(c)
+    reach = round(CURVE_WINDOW_S / BLOCK_S)
+    padded = np.concatenate([np.zeros(reach), full, np.zeros(reach)])
+    windows = np.lib.stride_tricks.sliding_window_view(padded, 2 * reach + 1)
+    return CURVE_MODEL_SHARE * windows.max(axis=1)[ids - ids.min()]
 
 
 def scatter_weights(resid: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -580,7 +602,7 @@ def calibrate(
         w = weights
         for it in range(CURVE_ITER if moving else 1):
             theta, b, cov, rms, fitted, resid = _solve(
-                m, a, alpha, moving, g, theta0, fit_offset, c, w, ids
+                m, a, alpha, moving, g, theta0, fit_offset, c, w, ids, curve_sigma(c, ids)
             )
             if not moving:
                 break

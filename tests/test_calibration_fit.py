@@ -92,8 +92,10 @@ def assert_recovered(fit: Any) -> None:
     err = fit.angles_deg - np.array(AS_BUILT)
     print(fit.report(), "\nerror deg:", err)
     assert np.all(np.abs(err) <= TOLERANCE_DEG)
-    # the stated uncertainty is statistical; unmodelled 30 ug offsets add up to 0.002 deg
-    assert np.all(fit.angle_sigma_deg < 0.005)
+    # the stated uncertainty is statistical (in motion it also counts 30 % of the vertical
+    # curves' modelled v^2/R as unknown: 0.009 deg here); unmodelled 30 ug offsets add up
+    # to 0.002 deg
+    assert np.all(fit.angle_sigma_deg < 0.01)
     assert np.all(np.abs(err) < 4 * fit.angle_sigma_deg + 0.0025)
     assert fit.residual_rms_mps2 < 0.002
     assert [c.angle_deg for c in fit.config.channels] == pytest.approx(list(fit.angles_deg))
