@@ -3,9 +3,12 @@ running ``bench accept`` on a plan text."""
 
 from __future__ import annotations
 
+import functools
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
+
+from lxml import etree
 
 from bench.cli import main
 
@@ -32,46 +35,36 @@ def accept(tmp_path: Path, name: str, text: str, *extra: str) -> tuple[int, Path
 
 # --------------------------------------------------------------------------- JUnit schema
 
-_SUITE_CHILDREN = {"properties", "testcase", "system-out", "system-err"}
-_CASE_CHILDREN = {"properties", "skipped", "error", "failure", "system-out", "system-err"}
+SCHEMAS = Path(__file__).parent / "schemas"
+JUNIT_SCHEMAS = ("junit-10.xsd", "junit-4.xsd")
+"""Jenkins' xUnit plugin schema and the dtkit junit-4.xsd (whose elements GitLab parses)."""
 
 
-def _number(value: str | None, kind: type) -> None:
-    assert value is not None
-    kind(value)  # raises on a malformed count or time
+@functools.cache
+def junit_schema(name: str) -> etree.XMLSchema:
+    return etree.XMLSchema(etree.parse(str(SCHEMAS / name)))
+
+
+def schema_errors(path: Path, name: str) -> list[str]:
+    """What the XSD ``name`` finds wrong with the XML file at ``path`` (empty: valid)."""
+    schema = junit_schema(name)
+    if schema.validate(etree.parse(str(path))):
+        return []
+    return [f"{e.line}: {e.message}" for e in schema.error_log]
 
 
 def validate_junit(path: Path) -> ET.Element:
-    """The JUnit XML schema CI servers read (Jenkins junit-10.xsd, as GitLab and GitHub
-    accept it), checked rule by rule: elements, required attributes, types, counts."""
+    """junit.xml valid under both shipped XSDs (lxml), and its counts true to its cases."""
+    for name in JUNIT_SCHEMAS:
+        assert schema_errors(path, name) == [], name
     root = ET.parse(path).getroot()
-    assert root.tag == "testsuites"
-    suites = list(root)
-    assert suites and all(s.tag == "testsuite" for s in suites)
-    for suite in suites:
-        assert suite.get("name")
-        for attr in ("tests", "failures", "errors", "skipped"):
-            _number(suite.get(attr), int)
-        _number(suite.get("time"), float)
+    for suite in root.iter("testsuite"):
         assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d", suite.get("timestamp", ""))
-        tags = [c.tag for c in suite]
-        assert set(tags) <= _SUITE_CHILDREN
-        assert tags.count("properties") <= 1 and tags[0] == "properties"
-        for prop in suite.iter("property"):
-            assert prop.get("name") is not None and prop.get("value") is not None
         cases = suite.findall("testcase")
-        counted = {"failure": 0, "error": 0, "skipped": 0}
-        for case in cases:
-            assert case.get("name") and case.get("classname")
-            _number(case.get("time"), float)
-            kids = [c.tag for c in case]
-            assert set(kids) <= _CASE_CHILDREN
-            assert "properties" not in kids[1:]  # at most one, first (pytest, Xray, Testmo)
-            assert sum(k in ("failure", "error", "skipped") for k in kids) <= 1
-            for k in counted:
-                counted[k] += kids.count(k)
+        kids = [c.tag for case in cases for c in case]
+        assert all(c.get("classname") and float(c.get("time", "x")) >= 0 for c in cases)
         assert int(suite.get("tests", "-1")) == len(cases)
-        assert int(suite.get("failures", "-1")) == counted["failure"]
-        assert int(suite.get("errors", "-1")) == counted["error"]
-        assert int(suite.get("skipped", "-1")) == counted["skipped"]
+        assert int(suite.get("failures", "-1")) == kids.count("failure")
+        assert int(suite.get("errors", "-1")) == kids.count("error")
+        assert int(suite.get("skipped", "-1")) == kids.count("skipped")
     return root

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from bench.acceptance.model import Measurement, RunData
+from bench.acceptance.units import quantity
 
 ESTIMATORS = {
     # name: (result column, compare with |truth|: the column has no sign)
@@ -99,11 +100,7 @@ def expected_samples(spec: CheckSpec, run: RunData) -> int:
 
 
 def fmt_value(v: float | None, unit: str) -> str:
-    if v is None or not math.isfinite(v):
-        return "n/a"
-    if unit == "fraction":
-        return f"{v:.4%}"
-    return f"{v:.4g} {unit}"
+    return quantity(v, unit, digits=4)
 
 
 def judge(spec: CheckSpec, value: float | None, detail: str, **extra: Any) -> Measurement:

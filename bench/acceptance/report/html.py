@@ -11,7 +11,7 @@ from bench.acceptance.checks.registry import KINDS
 from bench.acceptance.expectation import expectation_text, status_of
 from bench.acceptance.outcome import RunOutcome
 from bench.acceptance.report.measured import measured_text
-from bench.acceptance.report.text import format_limits, window_text
+from bench.acceptance.report.text import format_limits, format_margin, window_text
 from bench.acceptance.signoff import SIGN_OFF_CSS, dut_html, sign_off_html
 
 _CSS = """
@@ -37,7 +37,7 @@ def report_html(outcome: RunOutcome, record: dict[str, Any], plots: dict[str, st
             f"<tr class='{m.verdict}'><td>{e(m.name)}</td><td>{e(m.kind)}</td>"
             f"<td>{e(', '.join(plan.requirement_ids(m.name)))}</td>"
             f"<td>{e(measured_text(m))}</td><td>{e(format_limits(m))}</td>"
-            f"<td>{'' if m.margin is None else e(f'{m.margin:.4g}')}</td>"
+            f"<td>{e(format_margin(m))}</td>"
             f"<td>{e(window_text(m))}</td><td><b>{m.verdict.upper()}</b>{note}</td>"
             f"<td>{e(m.detail)}</td></tr>"
         )

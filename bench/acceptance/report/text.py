@@ -2,23 +2,23 @@
 
 from __future__ import annotations
 
-import math
-
 from bench.acceptance.model import VERDICTS, Measurement
+from bench.acceptance.units import quantity
 
 
 def format_value(m: Measurement) -> str:
-    if m.value is None or not math.isfinite(m.value):
-        return "n/a"
-    if m.unit == "fraction":
-        return f"{m.value:.4%}"
-    return f"{m.value:.6g} {m.unit}"
+    return quantity(m.value, m.unit)
+
+
+def format_margin(m: Measurement) -> str:
+    """The distance to the fail limit, in the check's unit (negative: failed by that much)."""
+    return quantity(m.margin, m.unit)
 
 
 def format_limits(m: Measurement) -> str:
     parts = []
     for key, v in m.limits.items():
-        shown = f"{v:.4%}" if m.unit == "fraction" else f"{v:g} {m.unit}"
+        shown = quantity(v, m.unit)
         sign = "<=" if "max" in key else ">="
         parts.append(f"{'warn ' if key.startswith('warn') else ''}{sign} {shown}")
     return ", ".join(parts)
