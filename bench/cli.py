@@ -7,13 +7,22 @@ import importlib
 import pkgutil
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from bench import __version__, commands
 from bench.errors import BenchError
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors on one line (``bench run: error: ...``), not after a usage
+    block that buries them; ``--help`` still shows the usage. Subcommands inherit it."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="bench", description="Hardware-in-the-loop bench for the ACB-3 gradient board."
     )
     parser.add_argument("--version", action="version", version=f"bench {__version__}")

@@ -10,6 +10,7 @@ opened itself, a reopen with backoff and a "reconnect" notice.
 from __future__ import annotations
 
 import contextlib
+import errno
 import math
 import time
 from collections.abc import Sequence
@@ -22,6 +23,12 @@ from devices.base import LiveSource, Reconnector, SourceBatch, SourceNotice
 from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+
+NO_SOCKETCAN = (
+    "this kernel has no SocketCAN (Errno 97, EAFNOSUPPORT: containers and many cloud VMs "
+    "have none); try the bench on vcan in a VM: tools/vcan-vm (README, 'Trying SocketCAN')"
+)
+"""What an operator reads when the kernel cannot make a CAN socket at all."""
 
 BURST_LIMIT = 4096
 """Frames drained into one batch after the first: bounds latency and memory of a batch."""
@@ -140,7 +147,10 @@ def open_bus(config: dict[str, Any]) -> can.BusABC:
             return SocketcanRxBus(**kwargs)
         return can.Bus(ignore_config=True, **config)
     except Exception as exc:  # backends raise anything from CanError to ImportError/OSError
-        raise BenchError(f"cannot open can bus {describe_config(config)}: {one_line(exc)}") from exc
+        why = one_line(exc)
+        if isinstance(exc, OSError) and exc.errno == errno.EAFNOSUPPORT:
+            why = NO_SOCKETCAN
+        raise BenchError(f"cannot open can bus {describe_config(config)}: {why}") from exc
 
 
 class CanBusSource(LiveSource):

@@ -8,6 +8,7 @@ board's UART instead.
 from __future__ import annotations
 
 import argparse
+import difflib
 
 import can
 
@@ -18,6 +19,20 @@ from devices.serial_port import DEFAULT_BAUD, SerialSource
 
 INTERFACES = sorted(can.VALID_INTERFACES)
 """Every interface python-can knows, its plugins included: the operator chooses."""
+
+
+def interface_name(text: str) -> str:
+    """``--interface``: a name python-can knows; a typo is one line naming the valid ones."""
+    if text in can.VALID_INTERFACES:
+        return text
+    close = difflib.get_close_matches(text, INTERFACES, n=1)
+    hint = f"did you mean {close[0]}? " if close else ""
+    raise argparse.ArgumentTypeError(
+        f"unknown interface {text!r} ({hint}python-can knows {', '.join(INTERFACES)})"
+    )
+
+
+interface_name.__name__ = "interface"
 
 
 def add_source_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
@@ -31,7 +46,7 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentG
     group.add_argument(
         "-i",
         "--interface",
-        choices=INTERFACES,
+        type=interface_name,
         default=None,
         metavar="INTERFACE",
         help="Specify the backend CAN interface to use (e.g. socketcan, pcan, kvaser, slcan, "

@@ -249,6 +249,27 @@ def test_unopenable_bus_is_one_line_error() -> None:
     assert "\n" not in text
 
 
+def test_a_kernel_without_can_says_so_with_a_pointer_to_the_vm(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Issue 28: Errno 97 (EAFNOSUPPORT, as this project's CI kernel gives) is named in one
+    line that points to tools/vcan-vm; the socket call itself is made to fail the same way
+    everywhere, so the test does not depend on the kernel it runs on."""
+    import errno
+    import socket
+
+    def no_can(family: int = -1, *args: object, **kwargs: object) -> socket.socket:
+        raise OSError(errno.EAFNOSUPPORT, "Address family not supported by protocol")
+
+    monkeypatch.setattr(socket, "socket", no_can)
+    with pytest.raises(BenchError) as e:
+        CanBusSource("socketcan", "vcan0")
+    text = str(e.value)
+    assert text.startswith("cannot open can bus interface=socketcan channel=vcan0: ")
+    assert "no SocketCAN (Errno 97, EAFNOSUPPORT" in text and "tools/vcan-vm" in text
+    assert "\n" not in text
+
+
 def test_bus_and_settings_together_are_refused(channel: str) -> None:
     rx = can.Bus(interface="virtual", channel=channel, ignore_config=True)
     try:

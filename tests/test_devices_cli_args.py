@@ -109,4 +109,20 @@ def test_an_interface_python_can_does_not_know_is_refused_by_argparse(
 ) -> None:
     with pytest.raises(SystemExit) as e:
         parse(["-i", "no-such-interface"])
-    assert e.value.code == 2 and "invalid choice" in capsys.readouterr().err
+    assert e.value.code == 2 and "unknown interface 'no-such-interface'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [["run"], ["tui"], ["accept", "level"], ["emulate", "demo"]])
+def test_a_wrong_interface_name_is_one_line_naming_the_valid_ones(
+    command: list[str], capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 28: one line, not a usage block; the closest name offered, every name listed."""
+    from bench.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([*command, "-i", "socketcn", "-c", "vcan0"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and err.count("\n") == 1 and "usage" not in err
+    assert err.startswith(f"bench {command[0]}: error: argument -i/--interface: unknown interface")
+    assert "did you mean socketcan?" in err
+    assert all(name in err for name in can.VALID_INTERFACES)

@@ -157,3 +157,16 @@ def test_fleet_rerun_skips_logs_already_done(fleet, tmp_path):
     key = {r["log"]: r for r in before}
     for r in after:
         assert r["wall_s"] == key[r["log"]]["wall_s"] or r["error"]  # nothing re-replayed
+
+
+def test_piped_fleet_table_keeps_every_column_whole(fleet, capsys, monkeypatch):
+    """Issue 28: `bench fleet ... | less` cut the columns to "fram..." at rich's 80 columns;
+    without a terminal the table takes its natural width."""
+    out, logs, _, _ = fleet
+    monkeypatch.delenv("COLUMNS", raising=False)
+    main(["fleet", *[str(p) for p in logs[:2]], "--out", str(out), "--workers", "1"])
+    printed = capsys.readouterr().out
+    header = next(line for line in printed.splitlines() if "log" in line and "frames" in line)
+    for name in ("frames", "valid %", "excluded s ch1/2/3", "|ref-est| permil", "status"):
+        assert name in header
+    assert "…" not in printed and "train00.log" in printed

@@ -16,6 +16,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from bench.errors import BenchError
+from bench.sinks.console import print_whole
 from bench.sinks.paths import check_output_dir, describe_os_error
 
 if TYPE_CHECKING:
@@ -130,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console()
     if args.list:
-        console.print(list_table())
+        print_whole(list_table(), console=console)
         return 0
     if not args.plan:
         raise BenchError("give a PLAN (file or shipped name), or --list to see the shipped plans")
@@ -198,7 +199,7 @@ def print_outcome(outcome: RunOutcome, console: Console) -> None:
     """The table, then one line per check that did not pass: which one and by how much."""
     from bench.acceptance.expectation import expectation_text, plan_line, status_of
 
-    console.print(result_table(outcome))
+    print_whole(result_table(outcome), console=console)
     for m in outcome.measurements:
         if m.verdict != "pass":
             style = _STYLE[m.verdict]

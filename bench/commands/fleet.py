@@ -8,6 +8,7 @@ import json
 from rich.console import Console
 
 from bench.errors import BenchError
+from bench.sinks.console import print_whole
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.quiet and console.is_terminal,
     )
     if not args.quiet:
-        Console().print(fleet_table(outcome))
+        print_whole(fleet_table(outcome))
     for row in outcome.rows:
         error = row.get("error")
         if error:

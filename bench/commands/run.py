@@ -198,7 +198,18 @@ def _report(
                 file=sys.stderr,
             )
     lost = any(getattr(s, "rows_lost", 0) for s in runner_sinks(runner))
-    return 1 if (runner.error or log_error or runner.output_errors or lost) else 0
+    silent = runner.frames_received == 0
+    if silent:  # a channel name typo on a virtual bus looks just like this: say so, exit 1
+        print(f"bench: error: {nothing_received(setup.description, start)}", file=sys.stderr)
+    return 1 if (runner.error or log_error or runner.output_errors or lost or silent) else 0
+
+
+def nothing_received(description: str, start: float) -> str:
+    """The closing line of a live run that never received a frame."""
+    return (
+        f"no frame received in {time.monotonic() - start:.1f} s on {description}: is the "
+        "channel name right, the bitrate the board's, the board powered and connected?"
+    )
 
 
 def runner_sinks(runner: LiveRunner) -> list[Any]:

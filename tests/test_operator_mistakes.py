@@ -1,0 +1,31 @@
+"""An operator's usual mistakes each end in one clear line (issue 28): a live run that never
+received a frame (a channel name typo on the virtual bus looks exactly like that) says so
+and exits 1. The wrong interface name and the kernel without CAN are in
+tests/test_devices_cli_args.py and tests/test_devices_bus.py; the piped fleet table in
+tests/test_fleet.py."""
+
+from __future__ import annotations
+
+import uuid
+
+import pytest
+
+from bench.cli import main
+
+
+def test_a_live_run_that_receives_nothing_says_so_and_exits_1(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    channel = f"typo-{uuid.uuid4().hex[:8]}"  # a virtual channel no one sends on
+    code = main(["run", "-i", "virtual", "-c", channel, "--duration", "0.5", "--no-log", "-q"])
+    err = capsys.readouterr().err
+    assert code == 1
+    line = next(ln for ln in err.splitlines() if "no frame received" in ln)
+    assert line.startswith("bench: error: no frame received in ")
+    assert f"interface=virtual channel={channel}" in line and "channel name" in line
+
+
+def test_a_live_run_that_receives_frames_is_not_warned(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["run", "--emulate", "demo", "--duration", "0.5", "--no-log", "-q"])
+    assert code == 0
+    assert "no frame received" not in capsys.readouterr().err
