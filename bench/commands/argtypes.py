@@ -7,9 +7,12 @@ import math
 from collections.abc import Callable
 
 
-def bounded_float(lo: float, hi: float, unit: str = "") -> Callable[[str], float]:
-    """A float in (lo, hi]: argparse shows ``argument --x: must be in (lo, hi] unit``."""
-    shown = f"({lo:g}, {hi:g}]" + (f" {unit}" if unit else "")
+def bounded_float(
+    lo: float, hi: float, unit: str = "", *, lo_included: bool = False
+) -> Callable[[str], float]:
+    """A float in (lo, hi] (``lo_included``: [lo, hi]): argparse shows ``argument --x: must
+    be in (lo, hi] unit``."""
+    shown = f"{'[' if lo_included else '('}{lo:g}, {hi:g}]" + (f" {unit}" if unit else "")
 
     def parse(text: str) -> float:
         try:
@@ -18,7 +21,8 @@ def bounded_float(lo: float, hi: float, unit: str = "") -> Callable[[str], float
             raise argparse.ArgumentTypeError(
                 f"expected a number in {shown}, got {text!r}"
             ) from None
-        if not (math.isfinite(value) and lo < value <= hi):
+        above = lo <= value if lo_included else lo < value
+        if not (math.isfinite(value) and above and value <= hi):
             raise argparse.ArgumentTypeError(f"must be in {shown}, got {text!r}")
         return value
 
@@ -30,3 +34,7 @@ SECONDS = bounded_float(0.0, 1e7, "s")
 """A run's length: positive, finite, at most ~115 days."""
 SPEED = bounded_float(0.0, 1000.0, "x real time")
 """A virtual board's time factor."""
+RATE = bounded_float(0.0, 1000.0, "x recorded speed")
+"""A recorded log's replay speed factor."""
+OFFSET = bounded_float(0.0, 1e7, "s", lo_included=True)
+"""Seconds into a log: zero or more."""
