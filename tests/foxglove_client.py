@@ -42,8 +42,11 @@ class Received:
 class Client:
     """Runs the protocol on a thread of its own; ``received`` fills in as messages come."""
 
-    def __init__(self, port: int, *, settle_s: float = 0.5) -> None:
+    def __init__(
+        self, port: int, *, settle_s: float = 0.5, subprotocols: tuple[str, ...] = SUBPROTOCOLS
+    ) -> None:
         self.port = port
+        self.subprotocols = subprotocols
         self.settle_s = settle_s
         self.received = Received()
         self._stop = threading.Event()
@@ -90,7 +93,7 @@ class Client:
         r = self.received
         async with websockets.connect(
             f"ws://127.0.0.1:{self.port}",
-            subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
+            subprotocols=list(self.subprotocols),  # type: ignore[arg-type]
             proxy=None,
             max_size=None,
         ) as ws:

@@ -5,8 +5,10 @@ file's, topic by topic: the same count, the same log times, the same bytes."""
 
 from __future__ import annotations
 
+import asyncio
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 import pytest
 from mcap.reader import make_reader
@@ -116,6 +118,7 @@ def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> 
     got = client.stop()
     assert proc.returncode == 0, "".join(lines) + rest
     assert "Traceback" not in rest
+    assert run_record(path)["foxglove"] == f"ws://127.0.0.1:{port}"  # the chosen port, kept
     channels, messages = mcap_contents(path)
     advertised = {c["topic"]: (c["encoding"], c["schemaName"]) for c in got.channels.values()}
     assert advertised == channels
@@ -178,6 +181,111 @@ def test_tui_foxglove_streams_from_the_engine_process(tmp_path: Path) -> None:
             time.sleep(0.1)
         got = client.stop()
         assert {c["topic"] for c in got.channels.values()} >= {"/bench/results", "/can/frames"}
+        # --foxglove 0: the chosen port where the operator looks once the screen is up
+        address = f"ws://127.0.0.1:{found[0].group(1)}"
+        assert session.snapshot().extra["foxglove"] == address
     finally:
         session.stop()
     assert session.report is not None and session.report.error is None
+    assert run_record(tmp_path / "t.mcap")["foxglove"] == address  # and in the log
+
+
+def run_record(path: Path) -> dict[str, str]:
+    from bench.mcaplog.reader import McapLog
+
+    with McapLog(path) as log:
+        return log.metadata_dict()["run"]
+
+
+def test_the_recording_panel_shows_the_stream_address() -> None:
+    import io
+
+    from rich.console import Console
+
+    from bench.tui.panels.recording import recording_table
+
+    out = io.StringIO()
+    Console(file=out, width=40).print(recording_table(None, None, "ws://127.0.0.1:40123"))
+    lines = out.getvalue().splitlines()
+    assert lines[0].strip() == "Foxglove ws://127.0.0.1:40123"  # first: no short panel crops it
+    assert "not recording" in lines[1]
+
+
+# -- both names of the protocol (bench/mcaplog/foxglove_front.py) ------------------------------
+OLD, NEW = "foxglove.websocket.v1", "foxglove.sdk.v1"
+
+
+def _one_step_stream(offered: tuple[str, ...]) -> tuple[Any, Any]:
+    """A stream on an ephemeral port, a client offering ``offered``, a short emulated run
+    through it; (what the client received, the emulated run)."""
+    config = Config()
+    stream = stream_sink(config, port=0)
+    try:
+        client = Client(stream.port, subprotocols=offered).start()
+        sim = emulated(3.0, faults=False)
+        step = 450
+        batches = [SourceBatch(sim.frames[i : i + step]) for i in range(0, len(sim.frames), step)]
+        run_pipeline(batches, config, sinks=[stream])
+        stream.close()
+        client.wait_quiet(quiet_s=1.0)
+    finally:
+        stream.close()
+    return client.stop(), sim
+
+
+@pytest.mark.parametrize("offered", [(OLD,), (NEW,)], ids=["websocket.v1", "sdk.v1"])
+def test_a_client_offering_either_name_is_served(offered: tuple[str, ...]) -> None:
+    """Issue 28: Lichtblick, older Foxglove Studio and foxglove_bridge-era tools offer only
+    foxglove.websocket.v1, which the SDK alone refuses with HTTP 400."""
+    got, sim = _one_step_stream(offered)
+    assert not got.errors
+    assert got.subprotocol == offered[0]  # the name the client asked for, back
+    assert got.server_info.get("name") == "gradient bench"
+    assert len(got.messages["/can/frames"]) == len(sim.frames)
+
+
+def test_a_client_offering_neither_name_gets_http_400() -> None:
+    import websockets
+
+    stream = stream_sink(Config(), port=0)
+    try:
+
+        async def connect() -> None:
+            async with websockets.connect(
+                f"ws://127.0.0.1:{stream.port}",
+                subprotocols=["some.other.v1"],  # type: ignore[list-item]
+                proxy=None,
+            ):
+                pass
+
+        with pytest.raises(websockets.InvalidStatus) as e:
+            asyncio.run(connect())
+        assert e.value.response.status_code == 400
+    finally:
+        stream.close()
+
+
+def test_the_handshake_rewrite_by_hand() -> None:
+    from bench.mcaplog.foxglove_front import rewrite_request, rewrite_response
+
+    old_only = (
+        b"GET / HTTP/1.1\r\nHost: 127.0.0.1:8765\r\nUpgrade: websocket\r\n"
+        b"sec-websocket-protocol:  foxglove.websocket.v1 \r\nSec-WebSocket-Key: abc==\r\n\r\n"
+    )
+    head, renamed = rewrite_request(old_only)
+    assert renamed
+    assert head == old_only.replace(
+        b"sec-websocket-protocol:  foxglove.websocket.v1 ",
+        b"Sec-WebSocket-Protocol: foxglove.sdk.v1",
+    )
+    both = old_only.replace(b"foxglove.websocket.v1 ", b"foxglove.websocket.v1, foxglove.sdk.v1")
+    assert rewrite_request(both) == (both, False)  # the SDK's own name offered: untouched
+    other = old_only.replace(b"foxglove.websocket.v1", b"x.v1")
+    assert rewrite_request(other) == (other, False)  # the SDK says 400, as it should
+    answer = (
+        b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\n"
+        b"sec-websocket-accept: xyz=\r\n\r\n"
+    )
+    assert rewrite_response(answer) == answer.replace(
+        b"sec-websocket-protocol: foxglove.sdk.v1", b"Sec-WebSocket-Protocol: foxglove.websocket.v1"
+    )

@@ -91,21 +91,24 @@ def run(args: argparse.Namespace) -> int:
         opening.callback(setup.close)
         sinks: list[Any] = []
         opening.callback(_close_sinks, sinks)
-        recording = open_recording(
-            args, setup, config, warn=lambda m: print(f"bench: {m}", file=sys.stderr)
-        )
+
+        def say(message: str) -> None:
+            print(f"bench: {message}", file=sys.stderr)
+
+        # the stream first, so that the log records its address (and a chosen port)
+        stream = open_stream(args, config, say, setup.metadata)
+        if stream is not None:
+            sinks.append(stream)  # fed like the log: the processing thread only enqueues
+        recording = open_recording(args, setup, config, warn=say)
         if not args.quiet:
-            announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
+            announce(config, say)
         if recording is not None:
-            sinks.append(recording)
+            sinks.insert(0, recording)
             print(f"bench: logging to {recording.path}", file=sys.stderr)
         if args.csv:
             from bench.sinks.tables import csv_sink
 
             sinks.append(csv_sink(args.csv, live=True))
-        stream = open_stream(args, config, lambda m: print(f"bench: {m}", file=sys.stderr))
-        if stream is not None:
-            sinks.append(stream)  # fed like the log: the processing thread only enqueues
         opening.pop_all()  # all open: from here the run's own shutdown closes them
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording

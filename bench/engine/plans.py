@@ -44,26 +44,28 @@ class EnginePlan:
         from bench.live.session import live_session
 
         setup = self.open_setup()
-        try:
+        extra: list[Any] = []
+        try:  # the extra sinks first: the recordings state the stream's address
+            extra = self.open_extra_sinks(warn, setup.metadata)
             first = self.open_first(setup, warn)
         except BaseException:
+            for sink in extra:
+                sink.close()
             setup.close()
             raise
         session = live_session(setup, self.config, first, self.log_dir, record=self.record)
-        try:
-            extra = self.open_extra_sinks(warn)
-        except BaseException:
-            session.stop()
-            raise
         for sink in extra:
             session.runner.add_sink(sink)
         return session
 
-    def open_extra_sinks(self, warn: Callable[[str], None]) -> list[Any]:
-        """Sinks beside the recording, e.g. the live Foxglove stream (``--foxglove``)."""
+    def open_extra_sinks(
+        self, warn: Callable[[str], None], metadata: dict[str, str] | None = None
+    ) -> list[Any]:
+        """Sinks beside the recording, e.g. the live Foxglove stream (``--foxglove``), whose
+        address goes into ``metadata``."""
         from bench.mcaplog.foxglove_stream import open_stream
 
-        stream = open_stream(getattr(self, "args", None), self.config, warn)
+        stream = open_stream(getattr(self, "args", None), self.config, warn, metadata)
         return [stream] if stream is not None else []
 
     def started(self, session: Any) -> None:

@@ -250,6 +250,8 @@ class Session:
             snap.extra["emulator_done"] = bool(getattr(self.setup.emulator, "done", False))
         if self.replay is not None:
             snap.extra["replay"] = self.replay.status()
+        if self.setup is not None and "foxglove" in self.setup.metadata:
+            snap.extra["foxglove"] = self.setup.metadata["foxglove"]  # the live stream's address
         if snap.recording is None and self.recorder.last_status is not None:
             snap.extra["last_recording"] = self.recorder.last_status
         return snap

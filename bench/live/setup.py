@@ -35,6 +35,8 @@ class LiveSetup:
     emulator: Any = None  # handle of an in-process virtual board (has .stop(), .done, .frames_sent)
     scenario_path: Path | None = None
     cleanup: list[Callable[[], None]] = field(default_factory=list)
+    metadata: dict[str, str] = field(default_factory=dict)  # every recording's run record
+    # states these too, e.g. "foxglove": the live stream's address (its port may be chosen)
 
     def start_board(self) -> None:
         """Start the in-process virtual board, if any: called once the runner listens, so
@@ -140,6 +142,7 @@ def run_metadata(
     }
     if setup.scenario_path is not None:
         meta["scenario"] = str(setup.scenario_path)
+    meta.update(setup.metadata)
     meta.update(extra or {})
     return meta
 

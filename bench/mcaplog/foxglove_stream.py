@@ -65,14 +65,21 @@ def add_foxglove_arguments(parser: Any) -> None:
     )
 
 
-def open_stream(args: Any, config: Config, say: Any = None) -> Any:
+def open_stream(
+    args: Any, config: Config, say: Any = None, metadata: dict[str, str] | None = None
+) -> Any:
     """The live stream the command line asks for (None without ``--foxglove``), announced
-    through ``say`` with the address a Foxglove client connects to."""
+    through ``say`` with the address a Foxglove client connects to; the address also goes
+    into ``metadata`` as ``foxglove`` (the run's recordings state it: with ``--foxglove 0``
+    the port is chosen here, and a TUI covers the line that said it)."""
     port = getattr(args, "foxglove", None)
     if port is None:
         return None
     host = getattr(args, "foxglove_host", DEFAULT_HOST) or DEFAULT_HOST
     sink = stream_sink(config, host, port)
+    address = stream_label(host, sink.port)
+    if metadata is not None:
+        metadata["foxglove"] = address
     if say is not None:
-        say(f"Foxglove live stream on {stream_label(host, sink.port)}")
+        say(f"Foxglove live stream on {address}")
     return sink

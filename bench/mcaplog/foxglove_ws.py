@@ -15,8 +15,11 @@ processing thread only enqueues; a full queue drops the step and counts it in ``
 Each connected client has the SDK's own bounded backlog (``BACKLOG`` messages; the SDK drops
 the oldest when a slow client falls behind).
 
-The SDK (0.30) speaks the protocol under the subprotocol name ``foxglove.sdk.v1``, the same
-protocol as ``foxglove.websocket.v1`` renamed; the Foxglove app offers both.
+The SDK (0.30) speaks the protocol under the subprotocol name ``foxglove.sdk.v1`` only, the
+same protocol as ``foxglove.websocket.v1`` renamed; the Foxglove app offers both, older
+Foxglove Studio, Lichtblick and foxglove_bridge-era tools only the old one. So the SDK's
+server listens on 127.0.0.1 at a free port and :class:`~bench.mcaplog.foxglove_front.
+SubprotocolFront` on the address asked for, accepting both names.
 """
 
 from __future__ import annotations
@@ -32,10 +35,13 @@ from typing import Any
 import numpy as np
 
 from bench.config import Config
+from bench.mcaplog.foxglove_front import SubprotocolFront
 
 log = logging.getLogger("bench.foxglove")
 
 DEFAULT_HOST = "127.0.0.1"
+INNER_HOST = "127.0.0.1"
+"""Where the SDK's own server listens (a free port): only the front connects to it."""
 DEFAULT_PORT = 8765
 BACKLOG = 65_536
 """Messages the SDK buffers per client: a 0.25 s group at 1 kHz x 3 channels is ~5 000."""
@@ -61,15 +67,21 @@ class WsChannels:
         try:
             self.server = foxglove.start_server(
                 name=SERVER_NAME,
-                host=host,
-                port=port,
+                host=INNER_HOST,
+                port=0,
                 context=self.context,
                 message_backlog_size=BACKLOG,
             )
-        except Exception as exc:  # the SDK raises its own error types for a port in use
-            raise OSError(f"cannot serve Foxglove on {stream_label(host, port)}: {exc}") from None
+        except Exception as exc:  # the SDK raises its own error types
+            raise OSError(f"cannot start the Foxglove server: {exc}") from None
+        try:  # where clients connect: both names of the protocol (foxglove_front)
+            self.front = SubprotocolFront(host, port, int(self.server.port))
+        except (OSError, ValueError) as exc:  # a port in use, an address not of this machine
+            self.server.stop()
+            why = getattr(exc, "strerror", None) or exc
+            raise OSError(f"cannot serve Foxglove on {stream_label(host, port)}: {why}") from None
         self.host = host
-        self.port = int(self.server.port)
+        self.port = self.front.port
         self._schemas: list[Any] = []
         self._channels: list[Any] = []
         self._counts: Counter[int] = Counter()
@@ -164,6 +176,7 @@ class WsChannels:
             self.closed = True
             with contextlib.suppress(Exception):
                 self.server.stop()
+            self.front.close()
 
 
 def foxglove_sink_class() -> type:

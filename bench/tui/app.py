@@ -283,7 +283,10 @@ class BenchApp(App[int]):
         self.query_one(ChannelsPanel).show(row, snap.stats, rates)
         self.query_one(GradientPlot).show(plot, plot_size(plot) if plot is not None else None)
         self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
-        self.query_one(RecordingPanel).show(snap.recording, snap.extra.get("last_recording"))
+        extra = snap.extra
+        self.query_one(RecordingPanel).show(
+            snap.recording, extra.get("last_recording"), extra.get("foxglove")
+        )
         self.query_one(EventsPanel).show(snap.events)
         self.snapshots_applied += 1
 

@@ -11,9 +11,15 @@ from bench.sinks.base import RecordingStatus
 from bench.tui.panels import MISSING, duration_text, size_text
 
 
-def recording_table(status: RecordingStatus | None, last: RecordingStatus | None) -> Table:
+def recording_table(
+    status: RecordingStatus | None, last: RecordingStatus | None, stream: str | None = None
+) -> Table:
+    """The panel's rows; ``stream``: the live Foxglove stream's address (``--foxglove``; a
+    port chosen at start is shown nowhere else once the screen is up), on the first row."""
     table = Table(box=None, pad_edge=False, padding=0, show_header=False, show_edge=False)
     table.add_column(overflow="fold", ratio=1)
+    if stream:
+        table.add_row(Text(f"Foxglove {stream}", style="cyan"))
     if status is None:
         table.add_row(Text("○ not recording: press r to start", style="dim"))
         if last:
@@ -55,6 +61,11 @@ class RecordingPanel(Static):
     def on_mount(self) -> None:
         self.border_title = "Recording"
 
-    def show(self, status: RecordingStatus | None, last: RecordingStatus | None = None) -> None:
-        self.update(recording_table(status, last), layout=False)
+    def show(
+        self,
+        status: RecordingStatus | None,
+        last: RecordingStatus | None = None,
+        stream: str | None = None,
+    ) -> None:
+        self.update(recording_table(status, last, stream), layout=False)
         self.set_class(status is not None, "recording")
