@@ -26,6 +26,19 @@ def build_parser() -> argparse.ArgumentParser:
         prog="bench", description="Hardware-in-the-loop bench for the ACB-3 gradient board."
     )
     parser.add_argument("--version", action="version", version=f"bench {__version__}")
+    parser.add_argument(
+        "--print-config",
+        action="store_true",
+        help="show the interface, channel, bitrate, calibration sheet and log folder a command "
+        "would use and where each came from (bench.toml, BENCH_*, ...), then exit",
+    )
+    parser.add_argument(
+        "--completion",
+        choices=("bash", "zsh"),
+        metavar="SHELL",
+        help="print a completion script for bash or zsh and exit "
+        '(e.g. eval "$(bench --completion bash)" in ~/.bashrc)',
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
@@ -39,6 +52,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
         args = parser.parse_args(argv)
+        if args.completion:
+            import shtab
+
+            print(shtab.complete(parser, shell=args.completion), end="")
+            return 0
+        from bench import defaults
+
+        defaults.layers()  # a bad defaults file or BENCH_* value: one line, whatever the command
+        if args.print_config:
+            defaults.print_config(args)
+            return 0
+        defaults.apply_bus_defaults(args)
         if not getattr(args, "func", None):
             parser.print_help()
             return 2

@@ -6,9 +6,11 @@
   bench would be from the board's calibration sheet. Otherwise every emulated run would show
   a calibration error as if it were a fault (0.2 deg of mounting error is ~3.5 permil).
 * A recorded MCAP run replays with the calibration it recorded.
-* Anything else (a live bus, a candump/BLF/... log) gets the ICD's nominal values, and the
-  line printed says so; an emulator ``.log`` gets its board's sheet from
-  ``bench emulate --out run.log --calibration-out cal.toml`` and ``--config cal.toml``.
+* Anything else (a live bus, a candump/BLF/... log) gets the bench's default calibration
+  sheet (``config`` in bench.toml, ``BENCH_CONFIG``, ...: :mod:`bench.defaults`), else the
+  ICD's nominal values, and the line printed says so; an emulator ``.log`` gets its board's
+  sheet from ``bench emulate --out run.log --calibration-out cal.toml`` and ``--config
+  cal.toml``.
 """
 
 from __future__ import annotations
@@ -34,25 +36,34 @@ def scenario_config(scenario: Any) -> Config:
     )
 
 
+def default_config(use_defaults: bool = True) -> Config:
+    """What a source without a calibration of its own gets: the bench's default sheet (the
+    ``config`` of :mod:`bench.defaults`), else the ICD's nominal values."""
+    from bench.defaults import setting
+
+    found = setting("config") if use_defaults else None
+    return load_config(found.value) if found is not None else Config()
+
+
 def live_config(config_path: str | None, emulate: str | Path | None = None) -> Config:
     """The calibration of a live run: ``--config``, else the emulated board as built, else
-    nominal."""
+    the default sheet or nominal."""
     if config_path:
         return load_config(config_path)
     if emulate:
         from devices.emulator.scenario import resolve_scenario_path
 
         return scenario_config(resolve_scenario_path(emulate))
-    return Config()
+    return default_config()
 
 
 def is_mcap(path: str | Path) -> bool:
     return str(path).lower().endswith(".mcap")
 
 
-def replay_config(config_path: str | None, log: str | Path) -> Config:
+def replay_config(config_path: str | None, log: str | Path, *, use_defaults: bool = True) -> Config:
     """The calibration of a replay: ``--config``, else the one an MCAP log recorded, else
-    nominal."""
+    the default sheet (unless ``use_defaults`` is off) or nominal."""
     if config_path:
         return load_config(config_path)
     if is_mcap(log):
@@ -61,7 +72,7 @@ def replay_config(config_path: str | None, log: str | Path) -> Config:
         recorded = recorded_config(log)
         if recorded is not None:
             return recorded
-    return Config()
+    return default_config(use_defaults)
 
 
 def replay_hint(config: Config, log: str | Path) -> str | None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+from typing import Any
 
 import can
 
@@ -35,6 +36,20 @@ def interface_name(text: str) -> str:
 interface_name.__name__ = "interface"
 
 
+def add_interface_argument(parser: Any, help: str) -> None:
+    """``-i/--interface``: python-can's names, checked by :func:`interface_name`; the choices
+    are there for shell completion (bench --completion)."""
+    parser.add_argument(
+        "-i",
+        "--interface",
+        type=interface_name,
+        choices=INTERFACES,
+        default=None,
+        metavar="INTERFACE",
+        help=help,
+    )
+
+
 def add_source_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentGroup:
     """Add the live-source options to ``parser`` (in their own help group) and return it."""
     group = parser.add_argument_group(
@@ -43,13 +58,9 @@ def add_source_arguments(parser: argparse.ArgumentParser) -> argparse._ArgumentG
         "and the CAN_INTERFACE / CAN_CHANNEL / CAN_BITRATE environment variables) or the "
         "board's UART (--serial).",
     )
-    group.add_argument(
-        "-i",
-        "--interface",
-        type=interface_name,
-        default=None,
-        metavar="INTERFACE",
-        help="Specify the backend CAN interface to use (e.g. socketcan, pcan, kvaser, slcan, "
+    add_interface_argument(
+        group,
+        "Specify the backend CAN interface to use (e.g. socketcan, pcan, kvaser, slcan, "
         "virtual). If left blank, fall back to reading from configuration files.",
     )
     group.add_argument(

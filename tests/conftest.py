@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+
 
 def pytest_configure() -> None:
     """Compile (or load from numba's on-disk cache) the joint filter's kernel once per test
     process before any test runs: tests that start the bench in a subprocess and wait for
-    its first output must not spend their timeout on the compiler."""
+    its first output must not spend their timeout on the compiler. And no operator's
+    defaults (bench.defaults: BENCH_INTERFACE ..., ~/.config/bench/config.toml) reach the
+    tests, nor the commands they start."""
+    from bench.defaults import ENV
+
+    for name in ENV.values():
+        os.environ.pop(name, None)
+    os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="bench-tests-xdg-")
+
     from bench.fusion.joint import warm_up
 
     warm_up()

@@ -14,7 +14,8 @@ from pathlib import Path
 import devices
 from bench.commands.argtypes import SPEED
 from bench.config_choice import announce, live_config, scenario_config
-from bench.live.setup import DEFAULT_LOG_DIR, add_log_arguments
+from bench.defaults import log_folder
+from bench.live.setup import add_log_arguments
 from bench.mcaplog.foxglove_stream import add_foxglove_arguments
 
 __all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     path = resolve_scenario_path(args.scenario)
     config = live_config(args.config, path)
-    log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
+    log_dir = Path(args.mcap).parent if args.mcap else log_folder()
     plan = EmulatorPlan(
         config=config, args=cli_values(args), log_dir=log_dir, scenario=path, speed=args.speed
     )

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bench.errors import BenchError
-from devices.cli_args import interface_name
+from devices.cli_args import add_interface_argument
 
 
 def register(subparsers: Any) -> None:
@@ -54,12 +54,7 @@ def register(subparsers: Any) -> None:
         help="write the board's calibration sheet as built (the bench config for replaying "
         "--out FILE: bench replay FILE --config TOML)",
     )
-    p.add_argument(
-        "-i",
-        "--interface",
-        type=interface_name,
-        help="python-can interface to play on (e.g. socketcan)",
-    )
+    add_interface_argument(p, "python-can interface to play on (e.g. socketcan)")
     p.add_argument("--channel", "-c", help="python-can channel to play on (e.g. vcan0)")
     p.add_argument("--bitrate", type=int, help="bit rate, where the interface needs one")
     p.add_argument(

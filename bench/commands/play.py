@@ -18,7 +18,7 @@ from typing import Any
 
 from bench.commands.argtypes import OFFSET, RATE, SECONDS
 from bench.errors import BenchError
-from devices.cli_args import interface_name
+from devices.cli_args import add_interface_argument
 
 
 class Stopped(Exception):
@@ -40,7 +40,7 @@ def register(subparsers: Any) -> None:
         ),
     )
     p.add_argument("log", metavar="LOG", help="the log to play")
-    p.add_argument("-i", "--interface", type=interface_name, help="python-can interface")
+    add_interface_argument(p, "python-can interface (e.g. socketcan, pcan, virtual)")
     p.add_argument("-c", "--channel", help="python-can channel (e.g. vcan0, can0)")
     p.add_argument("-b", "--bitrate", type=int, help="bit rate, where the interface needs one")
     p.add_argument(

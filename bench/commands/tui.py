@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING, Any
 
 from bench.config import Config
 from bench.config_choice import announce, live_config, replay_config, replay_hint
+from bench.defaults import log_folder
 from bench.errors import BenchError
-from bench.live.setup import DEFAULT_LOG_DIR, add_live_arguments
+from bench.live.setup import add_live_arguments
 
 if TYPE_CHECKING:
     from bench.live.view import SessionLike
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         config = replay_config(args.config, args.replay)
     else:
         config = live_config(args.config, args.emulate)
-    log_dir = Path(args.mcap).parent if args.mcap else DEFAULT_LOG_DIR
+    log_dir = Path(args.mcap).parent if args.mcap else log_folder()
     session = run_replay(args, config, log_dir) if args.replay else run_live(args, config, log_dir)
     say = lambda m: print(f"bench: {m}", file=sys.stderr)  # noqa: E731
     announce(config, say)

@@ -97,14 +97,16 @@ _CONFIG_TOML: dict[str, Any] = {}
 
 def _config_for(path: str, config_toml: str | None) -> Any:
     """The calibration: the one given (as TOML), else what `bench replay` would use (an MCAP
-    log's recorded one, else nominal: bench.config_choice.replay_config)."""
+    log's recorded one, else nominal: bench.config_choice.replay_config) but for the bench's
+    default sheet: a fleet's logs come from many boards, and a worker's folder is not the
+    client's."""
     import tomllib
 
     from bench.config import config_from_dict
     from bench.config_choice import replay_config
 
     if config_toml is None:
-        return replay_config(None, path)
+        return replay_config(None, path, use_defaults=False)
     if config_toml not in _CONFIG_TOML:
         data = tomllib.loads(config_toml)
         name = data.pop("_path", "--config")  # the client's file name, for the record

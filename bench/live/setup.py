@@ -122,9 +122,12 @@ def open_live(args: argparse.Namespace) -> LiveSetup:
     return LiveSetup(source, desc, _slug(desc))
 
 
-def default_log_path(slug: str, log_dir: Path = DEFAULT_LOG_DIR) -> Path:
+def default_log_path(slug: str, log_dir: Path | None = None) -> Path:
+    """``logs/<UTC time>-<source>.mcap``, in ``log_dir`` or the defaults' log folder."""
+    from bench.defaults import log_folder
+
     stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    return log_dir / f"{stamp}-{slug}.mcap"
+    return (log_dir if log_dir is not None else log_folder()) / f"{stamp}-{slug}.mcap"
 
 
 def run_metadata(
