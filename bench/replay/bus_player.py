@@ -40,7 +40,7 @@ class Selection:
 
     ids: frozenset[int] | None = None  # None: every ID
     skip_to_s: float = 0.0  # seconds after the log's first frame
-    error_frames: bool = False  # error frames are not sent unless asked (as can.player)
+    # error frames are never sent (can.player's default): a bus makes its own
 
 
 @dataclass
@@ -51,7 +51,7 @@ class LogCounts:
     selected: int = 0  # those the selection puts on the bus
     by_ids: int = 0  # left out by --ids
     before_skip: int = 0  # left out by --skip-to
-    error_frames: int = 0  # error frames not sent
+    error_frames: int = 0  # error frames (selected otherwise), not sent
     problems: int = 0  # unreadable lines, link errors, a truncated end: reported, not sent
     t0: float = math.nan  # the log's first receive time
     t_end: float = math.nan  # its last
@@ -87,26 +87,29 @@ def count_log(path: Path, selection: Selection) -> LogCounts:
             )
         if c.in_log == 0:
             c.t0 = float(f["t"][0])
-        c.t_end = float(f["t"][-1])
+        c.t_end = float(np.fmax(c.t_end, f["t"].max()))  # fmax: the NaN of "none yet" yields
         c.in_log += len(f)
-        keep = _keep(f, c.t0, selection)
-        c.selected += int(keep.sum())
-        err = (f["flags"] & FLAG_ERROR) != 0
-        c.error_frames += int(err.sum()) if not selection.error_frames else 0
-        late = f["t"] - c.t0 >= selection.skip_to_s
+        late, wanted, error = _masks(f, c.t0, selection)
         c.before_skip += int((~late).sum())
-        if selection.ids is not None:
-            c.by_ids += int((late & ~np.isin(f["id"], list(selection.ids))).sum())
+        c.by_ids += int((late & ~wanted).sum())
+        c.error_frames += int((late & wanted & error).sum())
+        c.selected += int((late & wanted & ~error).sum())
     return c
 
 
+def _masks(
+    frames: np.ndarray, t0: float, selection: Selection
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(at or after --skip-to, of a wanted ID, an error frame) per frame."""
+    late = frames["t"] - t0 >= selection.skip_to_s
+    ids = selection.ids
+    wanted = np.isin(frames["id"], list(ids)) if ids is not None else np.ones(len(frames), bool)
+    return late, wanted, (frames["flags"] & FLAG_ERROR) != 0
+
+
 def _keep(frames: np.ndarray, t0: float, selection: Selection) -> np.ndarray:
-    keep = frames["t"] - t0 >= selection.skip_to_s
-    if selection.ids is not None:
-        keep &= np.isin(frames["id"], list(selection.ids))
-    if not selection.error_frames:
-        keep &= (frames["flags"] & FLAG_ERROR) == 0
-    return keep
+    late, wanted, error = _masks(frames, t0, selection)
+    return late & wanted & ~error
 
 
 class BusPlayer:
