@@ -117,7 +117,7 @@ def resolve_bus_config(
         if given.get("interface") is None:
             raise BenchError(
                 "cannot open can bus: no interface given and none configured "
-                "(use --interface, ~/.canrc or CAN_INTERFACE)"
+                "(use --interface, bench.toml, ~/.canrc or CAN_INTERFACE)"
             ) from exc
         raise BenchError(f"cannot open can bus: {one_line(exc)}") from exc
     except (ValueError, TypeError) as exc:

@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError(f"--ids: {exc}") from None
     selection = Selection(ids=ids, skip_to_s=args.skip_to)
     path = Path(args.log)
+    config = resolve_bus_config(args.interface, args.channel, args.bitrate)  # before the count
     counts = count_log(path, selection)
     if not counts.in_log:
         raise BenchError(f"{path}: no frames to play")
@@ -92,7 +93,6 @@ def run(args: argparse.Namespace) -> int:
         raise BenchError(
             f"{path}: none of its {counts.in_log} frames is selected ({_left(counts)})"
         )
-    config = resolve_bus_config(args.interface, args.channel, args.bitrate)
     bus = open_bus(config)
     player = BusPlayer(path, bus, counts, selection, rate=args.rate, loop=args.loop)
     print(
