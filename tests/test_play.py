@@ -119,6 +119,8 @@ def test_every_frame_in_order_never_ahead_of_its_time(
     recorded = frames["t"] - frames["t"][0]
     arrived = np.array([m.timestamp for m in got]) - before
     assert (arrived >= recorded - EARLY_S).all()
+    # nor ahead of the first frame's own time: no late start caught up in a burst
+    assert (arrived - arrived[0] >= recorded - 0.05).all()
     out = capsys.readouterr().out
     n = len(frames)
     assert f"bench: done: {n} frames sent of {n} selected ({n} in the log), 0 send errors" in out

@@ -13,6 +13,7 @@ may read at any time.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections.abc import Iterator
@@ -147,22 +148,32 @@ class BusPlayer:
             if not self.loop or not self.counts.selected:
                 return
 
-    def _messages(self) -> Iterator[can.Message]:
+    def _message_lists(self) -> Iterator[list[can.Message]]:
+        """The selected frames as python-can Messages, a batch at a time, stamped with their
+        time from the log's start divided by the rate (what MessageSync paces by)."""
         t0, rate = self.counts.t0, self.rate
-        for batch in prefetch(_batches(self.path)):
+        for batch in _batches(self.path):
             f = batch.frames
             if not len(f):
                 continue
             f = f[_keep(f, t0, self.selection)]
-            rel = f["t"] - t0
-            for msg, t in zip(messages_from_frames(f), rel.tolist(), strict=True):
-                msg.timestamp = t / rate  # MessageSync paces by these
-                yield msg
+            msgs = messages_from_frames(f)
+            for msg, t in zip(msgs, ((f["t"] - t0) / rate).tolist(), strict=True):
+                msg.timestamp = t
+            yield msgs
 
     def _one_pass(self) -> None:
+        # reading and building Messages run ahead in a thread of their own, so that the
+        # playing thread only waits on the recorded timing
+        messages = itertools.chain.from_iterable(prefetch(self._message_lists()))
+        first = next(messages, None)
+        if first is None:
+            return
         send = self.bus.send
         rate = self.rate
-        for msg in can.MessageSync(self._messages(), timestamps=True, skip=0):
+        # MessageSync starts its clock when it starts: with the first message in hand, not
+        # before the first read (which would send the first frames late, then in a burst)
+        for msg in can.MessageSync(itertools.chain([first], messages), timestamps=True, skip=0):
             self.position_s = msg.timestamp * rate
             try:
                 send(msg, timeout=SEND_TIMEOUT_S)

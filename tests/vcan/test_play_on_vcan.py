@@ -77,10 +77,12 @@ def test_candump_sees_every_frame_of_the_log(
     assert code == 0, out
     assert wire(seen) == wire(expected)  # every frame, in order, byte for byte
     assert "bench: done: 2160 frames sent of 2160 selected (2160 in the log), 0 send errors" in out
-    # on the bus, the frames keep their recorded spacing: never ahead of it
+    # on the bus (candump's kernel times), no frame ahead of its recorded time after the
+    # first: a player that did not pace, or sent its first frames late and then caught up
+    # in a burst, breaks this (0.05 s: the first frame's own send)
     bus = seen["t"] - seen["t"][0]
     rec = expected["t"] - expected["t"][0]
-    assert bus[-1] >= rec[-1] - 0.01
+    assert (bus >= rec - 0.05).all(), float((rec - bus).max())
 
 
 def test_ids_and_skip_to_on_vcan(recorded: dict[str, Path], tmp_path: Path) -> None:
