@@ -257,7 +257,7 @@ def read_table(path: str | Path) -> np.ndarray:
         text = p.read_text(encoding="utf-8")
     except OSError as exc:
         raise BenchError(f"cannot read table {p}: {exc.strerror or exc}") from None
-    rows = []
+    rows: list[list[float]] = []
     for lineno, row in enumerate(csv.reader(text.splitlines()), 1):
         cells = [c.strip() for c in row]
         if not cells or not cells[0] or cells[0].startswith("#"):
@@ -403,7 +403,7 @@ def _solve(
         for i in range(3):
             jac[:, i, i] = -a * np.sin(theta[i]) + g * np.cos(phi[:, i]) + c * np.cos(theta[i])
             jac[:, i, i] *= sw
-        for col, i in enumerate(off_idx):
+        for col, i in enumerate(off_idx.tolist()):
             jac[:, i, 3 + col] = sw
         jp, rp = jac, r
         if free_alpha:
@@ -641,6 +641,7 @@ def calibrate(
     for i, ch in enumerate(config.channels):
         offset = ch.offset + b[i] / ch.scale  # code offset in LSB: a = (code - offset) * scale
         channels.append(ChannelCal(float(np.degrees(theta[i])), ch.scale, float(offset)))
+    # three channels: tuple() cannot say how many
     new = replace(config, channels=tuple(channels), source="calibration")  # type: ignore[arg-type]
     return Fit(
         reference=name,

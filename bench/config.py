@@ -114,6 +114,7 @@ SIGMA_LIMIT_MAX = 100.0
 class Config:
     base_id: int = DEFAULT_BASE
     sample_rate_hz: int = DEFAULT_SAMPLE_RATE_HZ  # until the board's status frame says otherwise
+    # three channels: tuple() cannot say how many
     channels: tuple[ChannelCal, ChannelCal, ChannelCal] = tuple(  # type: ignore[assignment]
         ChannelCal(a) for a in NOMINAL_ANGLES_DEG
     )
@@ -150,7 +151,8 @@ class Config:
 
     @property
     def angles_rad(self) -> tuple[float, float, float]:
-        return tuple(math.radians(c.angle_deg) for c in self.channels)  # type: ignore[return-value]
+        a1, a2, a3 = (math.radians(c.angle_deg) for c in self.channels)
+        return a1, a2, a3
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -430,7 +432,7 @@ def config_from_dict(
     return Config(
         base_id=base_id,
         sample_rate_hz=rate,
-        channels=tuple(cals),  # type: ignore[arg-type]
+        channels=tuple(cals),  # type: ignore[arg-type]  # three: checked above
         g=float(g),
         tolerance_permil=float(tol),
         gradient_sigma_limit_permil=float(limit),

@@ -123,15 +123,10 @@ def print_table(
         " (--quick: smoke test, not for quoting)" if quick else ""
     )
     table = Table(title=title, title_justify="left")
-    for col, kw in (
-        ("figure", {}),
-        ("value", {"justify": "right"}),
-        ("anchor (same run, same file)", {"justify": "right"}),
-        ("ratio", {"justify": "right"}),
-        ("target", {}),
-        ("", {}),
-    ):
-        table.add_column(col, **kw)
+    for col in ("figure", "value", "anchor (same run, same file)", "ratio", "target", ""):
+        table.add_column(
+            col, justify="right" if col in ("value", "ratio") or "anchor" in col else "left"
+        )
     style = {"PASS": "bold green", "MISS": "bold red", "ERROR": "bold red", "INFO": "dim"}
     for f in figures:
         table.add_row(

@@ -110,7 +110,7 @@ def curve_changes(truth: np.ndarray, g: float) -> list[tuple[float, float]]:
     dx = np.gradient(truth["position_m"])
     k = np.round(np.where(dx > 1e-6, np.gradient(s) / np.maximum(dx, 1e-9), 0.0), 4)
     out: list[tuple[float, float]] = []
-    for i in np.flatnonzero(np.abs(np.diff(k)) > 5e-4):
+    for i in np.flatnonzero(np.abs(np.diff(k)) > 5e-4).tolist():
         t = float(truth["time_s"][i])
         if not out or t - out[-1][0] > 0.5:
             out.append((t, float(k[min(i + 3, len(k) - 1)] - k[max(i - 3, 0)])))
@@ -135,7 +135,7 @@ def replay_told(name: str) -> Run:
             super().__init__(*a, **k)
             self.p[jl.P_WDET_SIGMA] = 1e9  # the detector never fires nor hedges
 
-        def push(self, b, u, w, mask, residual, latched, frames):  # type: ignore[no-untyped-def]
+        def push(self, b, u, w, mask, residual, latched, frames):
             # cut the push at each change it holds: (first sample on or off the curve, step)
             cuts: list[tuple[int, float]] = []
             while self.next < len(changes) and len(b) and changes[self.next][0] <= b[-1]:
@@ -155,12 +155,13 @@ def replay_told(name: str) -> Run:
                 *(np.concatenate([getattr(o, f.name) for o in outs]) for f in fields(FilterOutput))
             )
 
-    real = estimator_module.JointFilter
-    estimator_module.JointFilter = Told  # type: ignore[misc]
+    # the estimator module's own name for the filter class, patched for this one replay
+    real = estimator_module.JointFilter  # type: ignore[attr-defined]  # imported there, not re-exported
+    estimator_module.JointFilter = Told  # type: ignore[attr-defined]  # the same name
     try:
         return _replay(name, sim, config)
     finally:
-        estimator_module.JointFilter = real  # type: ignore[misc]
+        estimator_module.JointFilter = real  # type: ignore[attr-defined]  # the same name
 
 
 def with_settings(config: Any, settings: dict[str, Any]) -> Any:

@@ -38,11 +38,11 @@ def start_config(sc: Any) -> Any:
     from devices.emulator import calibration_toml
 
     sheet = config_from_dict(tomllib.loads(calibration_toml(sc)), source="sheet, nominal angles")
-    channels = tuple(
+    c1, c2, c3 = (
         ChannelCal(a, c.scale, c.offset)
         for a, c in zip(NOMINAL_ANGLES_DEG, sheet.channels, strict=True)
     )
-    return replace(sheet, channels=channels)
+    return replace(sheet, channels=(c1, c2, c3))
 
 
 def calibrate_seed(seed: int) -> dict[str, Any]:

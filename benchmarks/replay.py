@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -202,7 +203,7 @@ def measure(
             ("replay_candump_parquet", "replay candump .log + Parquet", {"parquet": d / "o.pq"}),
         ):
             out_file = next(iter(kw.values()))
-            dt, res = timed(lambda kw=kw: bench_replay(log, **kw), repeat)
+            dt, res = timed(partial(bench_replay, log, **kw), repeat)
             anchor_s = fig.extra["anchor_seconds"]
             figures.append(
                 Figure(
@@ -275,7 +276,7 @@ def measure(
             ("read_candump", "  candump reader alone", log),
             ("read_mcap", "  MCAP reader alone", mcap),
         ):
-            dt, n = timed(lambda p=path: read_only(p), repeat)
+            dt, n = timed(partial(read_only, path), repeat)
             figures.append(
                 Figure(
                     key, label, n / dt, "frames/s", detail=f"open_replay().batches(): {n} frames"

@@ -84,7 +84,7 @@ class FailingFile(io.RawIOBase):
     def writable(self) -> bool:
         return True
 
-    def write(self, b: Any) -> int:  # type: ignore[override]
+    def write(self, b: Any) -> int:
         if self.n + len(b) > self.limit:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
         self.n += len(b)

@@ -33,7 +33,7 @@ class SourceNotice(NamedTuple):
     t: float
     kind: str
     detail: str
-    count: int = 0
+    count: int = 0  # type: ignore[assignment]  # a field, shadowing tuple.count (unused here)
 
 
 @dataclass(slots=True)

@@ -141,7 +141,9 @@ def _template(line: bytes) -> _Template | None:
     )
 
 
-def _parse_group(a: np.ndarray, starts: np.ndarray, tpl: _Template) -> tuple[np.ndarray, dict]:
+def _parse_group(
+    a: np.ndarray, starts: np.ndarray, tpl: _Template
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Check ``tpl`` against the lines starting at ``starts`` (all of its length) and decode
     them. Returns (ok mask, columns); columns are meaningful where ok."""
     n = len(starts)
@@ -154,11 +156,13 @@ def _parse_group(a: np.ndarray, starts: np.ndarray, tpl: _Template) -> tuple[np.
         )
 
         def col(c: int) -> np.ndarray:
-            return block[:, c]
+            column: np.ndarray = block[:, c]
+            return column
     else:
 
         def col(c: int) -> np.ndarray:
-            return a[starts + c]
+            column: np.ndarray = a[starts + c]
+            return column
 
     for c, byte in tpl.seps:
         ok &= col(c) == byte
@@ -289,7 +293,7 @@ def _slow_line(raw: bytes) -> tuple[list[can.Message], str | None]:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
         return [], "not UTF-8 text"
-    msgs = []
+    msgs: list[can.Message] = []
     for sub in text.replace("\r\n", "\n").replace("\r", "\n").split("\n"):
         try:
             msg = message_from_line(sub)
@@ -376,6 +380,8 @@ def parse_candump_bytes(buf: bytes, first_line: int = 1) -> ParsedChunk:
     extra: list[tuple[int, int, np.ndarray]] = []
     for r in np.sort(np.concatenate(slow_rows)).tolist():
         raw = buf[starts[r] : ends[r]]
+        msgs: list[can.Message]
+        error: str | None
         if len(raw) > MAX_LINE_BYTES:
             msgs, error = [], f"line of {len(raw)} bytes"
         else:

@@ -43,7 +43,7 @@ def start_child(
             pass_fds=(theirs.fileno(),),
             env=env,
             start_new_session=own_session,
-            **streams,  # type: ignore[call-overload]
+            **streams,  # type: ignore[call-overload]  # stdout/stderr only: no text= overload
         )
     except BaseException:
         ours.close()

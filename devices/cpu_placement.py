@@ -103,7 +103,7 @@ def yield_cpu() -> None:
     first thing in a helper process): SCHED_IDLE on Linux, preempted by any normal thread
     that wakes; nice 10 elsewhere."""
     try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # type: ignore[attr-defined]
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
         with contextlib.suppress(AttributeError, OSError):
             os.nice(10)

@@ -35,6 +35,7 @@ from devices.candump import CandumpFileSource
 from devices.errors import BenchError
 from devices.text_logs import CSV_HEADER, TEXT_FORMATS, TextFormat, read_text_log
 from protocol.frames import empty_frames
+from protocol.records import LinkError
 from protocol.uart import MAX_BODY, deframe_bytes
 
 UART_CHUNK_BYTES = 4 << 20
@@ -197,7 +198,7 @@ class CanLogReaderSource(DiskFileSource):
         f = getattr(reader, "file", None)
         raw = getattr(f, "buffer", f)  # a text file cannot tell() while iterated
         with contextlib.suppress(AttributeError, OSError, ValueError):
-            self._pos = int(raw.tell())  # type: ignore[union-attr]
+            self._pos = int(raw.tell())  # type: ignore[union-attr]  # no file: suppressed
 
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
         max_frames = max(1, int(max_frames))
@@ -337,7 +338,9 @@ class UartCaptureSource(DiskFileSource):
                 yield from self._emit(empty_frames(), deframe_bytes(carry, nan)[1], max_frames)
             self._pos = self._size
 
-    def _emit(self, frames: np.ndarray, errors: list, max_frames: int) -> Iterator[SourceBatch]:
+    def _emit(
+        self, frames: np.ndarray, errors: list[LinkError], max_frames: int
+    ) -> Iterator[SourceBatch]:
         self.frames += len(frames)
         self.link_errors += len(errors)
         if not len(frames):

@@ -92,7 +92,9 @@ class SerialSource(LiveSource):
             self._set_timeout(port, timeout)
             chunk = port.read(1)
             if chunk:
-                waiting = port.in_waiting  # already buffered: read() returns at once
+                # already buffered: read() returns at once (every Serial class has
+                # in_waiting; the stubs' SerialBase, which serial_for_url returns, has not)
+                waiting: int = port.in_waiting  # type: ignore[attr-defined]  # see above
                 if waiting:
                     chunk += port.read(min(waiting, MAX_READ))
         except Exception as exc:  # SerialException/OSError on unplug; none may escape

@@ -116,6 +116,7 @@ class SocketcanRxBus(SocketcanBus):
             ) from error
         if not ready:
             return None, self._is_filtered
+        # the tap stands in for the socket (recvmsg is all capture_message calls)
         msg = capture_message(self._tap, self.channel == "")  # type: ignore[arg-type]
         if msg is not None and not msg.channel and self.channel:
             msg.channel = self.channel

@@ -189,7 +189,8 @@ def read_text_log(
     """Messages of a text log in file order, with a ``parse_error`` notice for every frame
     line python-can skipped or raised on (at the place it was found)."""
     ledger = LineLedger(f)
-    reader = fmt.reader(ledger, **reader_kwargs)
+    # python-can's text readers take an open file too; their hint names paths only
+    reader = fmt.reader(ledger, **reader_kwargs)  # type: ignore[arg-type]
     name = fmt.reader.__name__
 
     def error(lineno: int, why: str, text: str) -> SourceNotice:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, TypeGuard
 
 from devices.errors import ConfigError
 
@@ -49,7 +49,7 @@ def to_float(v: float) -> float:
         return math.inf if v > 0 else -math.inf
 
 
-def is_integer(v: Any) -> bool:
+def is_integer(v: object) -> TypeGuard[int]:
     return not isinstance(v, bool) and isinstance(v, int)
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -74,11 +75,12 @@ class DecodedBatch:
 
     @property
     def ok(self) -> np.ndarray:
-        return self.outcome == _OK
+        ok: np.ndarray = self.outcome == _OK
+        return ok
 
 
 def _columns(records: np.ndarray) -> DecodedBatch:
-    return DecodedBatch(*(records[name] for name in DECODED_DTYPE.names))
+    return DecodedBatch(*(records[name] for name in DECODED_DTYPE.names or ()))
 
 
 EMPTY_DECODED = _columns(np.zeros(0, dtype=DECODED_DTYPE))
@@ -115,7 +117,7 @@ def _classify(can_id: int, flags: int, base: int) -> tuple[int, int]:
     return _OTHER, 0
 
 
-def _decode_row(row: tuple, base: int) -> tuple:
+def _decode_row(row: tuple[Any, ...], base: int) -> tuple[Any, ...]:
     """One frame (unpacked FRAME_DTYPE record) -> one DECODED_DTYPE record."""
     _, can_id, dlc, flags, d0, d1, d2, d3, d4, d5, d6, d7 = row
     kind, channel = _classify(can_id, flags, base)
@@ -157,15 +159,18 @@ def decode_scalar(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
 
 
 # -- vector path ---------------------------------------------------------------------------
+_OFFSET = {name: spec[1] for name, spec in (FRAME_DTYPE.fields or {}).items()}
+
+
 def _at(name: str, fmt: str, byte: int) -> tuple[str, str, int]:
-    return name, fmt, FRAME_DTYPE.fields["data"][1] + byte
+    return name, fmt, _OFFSET["data"] + byte
 
 
 _FIELDS = [
-    ("id", "<u4", FRAME_DTYPE.fields["id"][1]),
-    ("id16", "<u2", FRAME_DTYPE.fields["id"][1]),
-    ("dlc", "u1", FRAME_DTYPE.fields["dlc"][1]),
-    ("flags", "u1", FRAME_DTYPE.fields["flags"][1]),
+    ("id", "<u4", _OFFSET["id"]),
+    ("id16", "<u2", _OFFSET["id"]),
+    ("dlc", "u1", _OFFSET["dlc"]),
+    ("flags", "u1", _OFFSET["flags"]),
     _at("counter", "u1", 0),
     _at("state", "u1", 1),
     _at("code_le", "<u4", 1),  # bytes 1..3 code, byte 4 above it

@@ -64,7 +64,8 @@ def frame_crc8_batch(ids: np.ndarray, data: np.ndarray) -> np.ndarray:
     crc = CRC8_TABLE[crc ^ ((ids >> 8) & 0xFF).astype(np.uint8)]
     for k in range(7):
         crc = CRC8_TABLE[crc ^ data[:, k]]
-    return crc ^ np.uint8(0xFF)
+    out: np.ndarray = crc ^ np.uint8(0xFF)
+    return out
 
 
 def _position_tables(length: int) -> tuple[int, list[np.ndarray]]:

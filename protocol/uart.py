@@ -73,7 +73,8 @@ def encode_packet(can_id: int, data: bytes) -> bytes:
         raise ValueError(f"{len(data)} data bytes, at most {MAX_DLC}")
     raw = bytes((can_id & 0xFF, can_id >> 8, len(data))) + bytes(data)
     crc = crc16_ccitt_false(raw)
-    return cobs.encode(raw + bytes((crc & 0xFF, crc >> 8))) + DELIMITER
+    packet: bytes = cobs.encode(raw + bytes((crc & 0xFF, crc >> 8)))
+    return packet + DELIMITER
 
 
 def decode_packet(body: bytes, t: float) -> RawFrame | LinkError:

@@ -303,7 +303,8 @@ def _run_live(
         if collector.last_n is None:
             return None
         ref = n_ref if n_ref is not None else collector.first_n
-        return (collector.last_n - ref) / rate  # type: ignore[operator]
+        assert ref is not None  # first_n is set with last_n
+        return (collector.last_n - ref) / rate
 
     def wait_until(t_s: float, what: str) -> None:
         while True:
@@ -453,7 +454,8 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         scenario_path.write_text(plan.scenario_toml(), encoding="utf-8")
     setup = None
     if mode == "live":
-        setup = open_live(opts.live_args)  # type: ignore[arg-type]
+        assert opts.live_args is not None  # a live mode is chosen from them
+        setup = open_live(opts.live_args)
     elif mode == "realtime":
         setup = open_emulator(scenario_path, speed=opts.speed)
     started = _now()

@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         _restore_handlers(old_handlers, ignore=bool(signalled))
 
 
-def _restore_handlers(old: dict[int, Any], *, ignore: bool) -> None:
+def _restore_handlers(old: dict[signal.Signals, Any], *, ignore: bool) -> None:
     """Put back the signal handlers the run replaced (``ignore``: SIG_IGN instead)."""
     for sig, handler in old.items():
         signal.signal(sig, signal.SIG_IGN if ignore else handler)

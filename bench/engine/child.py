@@ -85,7 +85,7 @@ def portable(exc: BaseException) -> BaseException:
         with contextlib.suppress(Exception):
             exc.add_note(f"in the engine process:\n{tb}")
     try:
-        return pickle.loads(pickle.dumps(exc))  # type: ignore[no-any-return]
+        return pickle.loads(pickle.dumps(exc))
     except Exception:
         return RuntimeError(f"{type(exc).__name__}: {exc}")
 
@@ -240,7 +240,7 @@ class _Server:
         return snap, rec.active, rec.can_start
 
     def rec_start(self) -> Path:
-        return self.session.recorder.start()  # type: ignore[no-any-return]
+        return self.session.recorder.start()
 
     def rec_detach(self) -> tuple[int, str] | None:
         sink = self.session.recorder.detach()
@@ -307,5 +307,5 @@ class _Server:
             self._output.seek(0, os.SEEK_END)
             size = self._output.tell()
             self._output.seek(max(0, size - OUTPUT_TAIL))
-            return self._output.read().decode("utf-8", "replace")  # type: ignore[no-any-return]
+            return self._output.read().decode("utf-8", "replace")
         return ""

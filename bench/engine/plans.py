@@ -54,6 +54,7 @@ class EnginePlan:
             setup.close()
             raise
         session = live_session(setup, self.config, first, self.log_dir, record=self.record)
+        assert session.runner is not None  # live_session always builds its runner
         for sink in extra:
             session.runner.add_sink(sink)
         return session

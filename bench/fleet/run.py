@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pyarrow.parquet as pq
-from rich.console import Console
+from rich.console import Console, JustifyMethod
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -210,6 +210,7 @@ def write_logs(out: Path, rows: list[dict[str, Any]]) -> None:
 def fleet_table(outcome: FleetOutcome, limit: int = 40) -> Table:
     """The console table: one row per log of this run (failed ones first), at most ``limit``."""
     table = Table(title=f"fleet: {len(outcome.rows)} logs")
+    justify: JustifyMethod
     for name, justify in (
         ("log", "left"),
         ("frames", "right"),
@@ -218,7 +219,7 @@ def fleet_table(outcome: FleetOutcome, limit: int = 40) -> Table:
         ("|ref-est| permil", "right"),
         ("status", "left"),
     ):
-        table.add_column(name, justify=justify, no_wrap=True)  # type: ignore[arg-type]
+        table.add_column(name, justify=justify, no_wrap=True)
     rows = sorted(outcome.rows, key=lambda r: r.get("error") is None)
     for r in rows[:limit]:
         if r.get("error"):

@@ -91,7 +91,8 @@ def _votes(slopes: np.ndarray, tolerance_permil: float) -> np.ndarray:
     """(3, N) votes from (3, N) slope values."""
     d = slopes[_VOTE_P]
     d -= slopes[_VOTE_Q]
-    return np.abs(d, out=d) <= tolerance_permil
+    votes: np.ndarray = np.abs(d, out=d) <= tolerance_permil
+    return votes
 
 
 def pair_gradients(acc: np.ndarray, angles_rad: np.ndarray, g: float) -> np.ndarray:

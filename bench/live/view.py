@@ -115,6 +115,14 @@ class ReplayControl(Protocol):
 
     def seek_failure(self) -> None: ...
 
+    def seek_event(self, kinds: frozenset[int]) -> None:
+        """Run to the next event of ``kinds`` and pause there."""
+        ...
+
+    def seek_time(self, log_t: float) -> None:
+        """Run to the sample at log time ``log_t`` and pause there."""
+        ...
+
 
 class SessionLike(Protocol):
     """A run as the TUI sees it: snapshots to draw, and the operator's actions."""

@@ -42,8 +42,11 @@ def link_error_from_json(m: bytes | memoryview) -> LinkError:
     code = int(d.get("outcome", 0))
     outcome: Outcome | int = Outcome(code) if code in Outcome._value2member_map_ else code
     return LinkError(
-        json_float(d.get("t")), outcome, base64.b64decode(d.get("raw", "")), d.get("detail", "")
-    )  # type: ignore[arg-type]
+        json_float(d.get("t")),
+        outcome,  # type: ignore[arg-type]  # a code this bench does not know stays the int it is
+        base64.b64decode(d.get("raw", "")),
+        d.get("detail", ""),
+    )
 
 
 def notice_from_json(m: bytes | memoryview) -> SourceNotice:

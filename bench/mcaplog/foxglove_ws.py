@@ -184,7 +184,7 @@ def foxglove_sink_class() -> type:
     imports this module before it knows which sink it runs)."""
     from bench.mcaplog.sink import McapSink
 
-    class FoxgloveSink(McapSink):  # type: ignore[misc, valid-type]
+    class FoxgloveSink(McapSink):
         """The MCAP sink's code writing into :class:`WsChannels` instead of a file."""
 
         def __init__(

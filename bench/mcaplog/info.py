@@ -37,7 +37,7 @@ def _span_rows(results: np.ndarray, mask: np.ndarray, limit: int) -> dict[str, A
     rows = []
     for a, b in found[:limit]:
         part = results[a:b]
-        failed = (~part["votes"]).any(axis=0)
+        failed = np.flatnonzero((~part["votes"]).any(axis=0)).tolist()
         rows.append(
             {
                 "first_n": int(part["n"][0]),
@@ -46,7 +46,7 @@ def _span_rows(results: np.ndarray, mask: np.ndarray, limit: int) -> dict[str, A
                 "start_time_s": float(part["time_s"][0]),
                 "end_time_s": float(part["time_s"][-1]),
                 "start_t": float(part["t"][0]),
-                "failed_votes": [f"v{k + 1}" for k in range(3) if failed[k]],
+                "failed_votes": [f"v{k + 1}" for k in failed],
             }
         )
     return {"count": len(found), "samples": int(np.count_nonzero(mask)), "spans": rows}
@@ -131,7 +131,9 @@ def log_info(path: str | Path, *, verify: bool = False, max_spans: int = 20) -> 
             "events": dict(sorted(events.items())),
             "results": len(results),
             "valid": int(np.count_nonzero(results["valid"])) if len(results) else 0,
-            "vote_failures": _span_rows(results, ~results["votes"].all(axis=1), max_spans)
+            "vote_failures": _span_rows(
+                results, np.logical_not(results["votes"].all(axis=1)), max_spans
+            )
             if len(results)
             else {"count": 0, "samples": 0, "spans": []},
             "invalid": _span_rows(results, ~results["valid"], max_spans)

@@ -357,13 +357,17 @@ class McapLog:
             elif info.compression == "":
                 buf = bytes(raw)
             else:
-                return self._bad(info, f"unsupported compression {info.compression!r}")
+                self._bad(info, f"unsupported compression {info.compression!r}")
+                return None
         except Exception as exc:
-            return self._bad(info, f"cannot decompress: {exc}")
+            self._bad(info, f"cannot decompress: {exc}")
+            return None
         if len(buf) != info.uncompressed_size:
-            return self._bad(info, f"size {len(buf)} != {info.uncompressed_size}")
+            self._bad(info, f"size {len(buf)} != {info.uncompressed_size}")
+            return None
         if self.verify_crc and info.crc and zlib.crc32(buf) != info.crc:
-            return self._bad(info, "CRC mismatch")
+            self._bad(info, "CRC mismatch")
+            return None
         return buf
 
     def _bad(self, info: ChunkInfo, why: str) -> None:

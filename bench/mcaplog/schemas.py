@@ -232,7 +232,7 @@ def columns_for(dtype: np.dtype, names: dict[str, Sequence[str]] | None = None) 
     names = {**_SUBARRAY_NAMES, **(names or {})}
     cols: list[Column] = []
     for field in dtype.names or ():
-        ftype = dtype.fields[field][0]
+        ftype = dtype[field]
         base = ftype.base if ftype.shape else ftype
         kind = _KIND.get(base.kind)
         if kind is None:

@@ -143,7 +143,7 @@ def _make_sink(
     if kind == "foxglove":
         from bench.mcaplog.foxglove_ws import foxglove_sink_class
 
-        return foxglove_sink_class()(config, metadata, attachments, threaded=False, **options)  # type: ignore[no-any-return]
+        return foxglove_sink_class()(config, metadata, attachments, threaded=False, **options)
     return McapSink(path, config, metadata, attachments, threaded=False, **options)
 
 

@@ -30,6 +30,8 @@ run and the replay of its log decide alike:
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from bench.pipeline.timeline import (
@@ -67,7 +69,7 @@ _STATUS_FLAG, _GAP, _SAMPLES_LOST = (
     int(EventKind.SAMPLES_LOST),
 )
 
-Row = list
+Row = list[Any]
 """An open sample: [n, ticks, t, seq, code[3], status[3], present[3]] (SAMPLE_DTYPE order)."""
 
 
@@ -98,7 +100,7 @@ def _notes_array(notes: list[Note]) -> np.ndarray:
     return np.array(notes, dtype=EVENT_DTYPE) if notes else NO_EVENTS
 
 
-def _event_array(kind: int, rows: list[tuple]) -> np.ndarray:
+def _event_array(kind: int, rows: list[tuple[Any, ...]]) -> np.ndarray:
     """Events of one kind from (t, channel, n, value) tuples, as make_events builds them."""
     return np.array([(t, kind, ch, n, v) for t, ch, n, v in rows], dtype=EVENT_DTYPE)
 
@@ -239,10 +241,10 @@ class Assembler:
         chain, mx = timeline.chain, self.max_n
         taken: set[int] | None = None
         rows = {r[0]: r for r in self._open}
-        jumps: list[tuple] = []
-        late: list[tuple] = []
-        dups: list[tuple] = []
-        flagged: list[tuple] = []
+        jumps: list[tuple[Any, ...]] = []
+        late: list[tuple[Any, ...]] = []
+        dups: list[tuple[Any, ...]] = []
+        flagged: list[tuple[Any, ...]] = []
         any_adc = False
         for i, k in enumerate(kind):
             if outcome[i] != _OK:
@@ -339,15 +341,15 @@ class Assembler:
         self, t: np.ndarray, dec: DecodedBatch, seq0: int
     ) -> tuple[np.ndarray, np.ndarray]:
         events = [self._error_events(t, dec)]
-        adc = np.flatnonzero((dec.kind == _ADC) & (dec.outcome == _OK))
+        adc: np.ndarray = np.flatnonzero((dec.kind == _ADC) & (dec.outcome == _OK))
         period, known = self._periods(dec, adc)
         if len(adc) == 0:
             return NO_SAMPLES, concat_events(events)
 
         c = dec.counter[adc]
         ts = dec.timestamp[adc]
-        tt = np.asarray(t[adc], dtype=np.float64)
-        ch = dec.channel[adc].astype(np.int64)
+        tt: np.ndarray = np.asarray(t[adc], dtype=np.float64)
+        ch: np.ndarray = dec.channel[adc].astype(np.int64)
         n, big_t, keep, tt = self._place_vector(tt, ts, c, ch, period, known)
         if keep is not None:  # outliers leave the stream here (their events are raised)
             sel = np.flatnonzero(keep)
@@ -407,7 +409,8 @@ class Assembler:
         timeline = self.timeline
         if timeline.chain is None:
             timeline.start(float(tt[0]), int(ts[0]), int(c[0]))
-        t0, ts0, big_t0, c0, n0 = timeline.chain  # type: ignore[misc]
+        assert timeline.chain is not None  # started just above
+        t0, ts0, big_t0, c0, n0 = timeline.chain
         d = (ts - _shifted(ts, ts0)).view(np.int16).astype(np.int64)  # centred, mod 2**16
         c_prev = _shifted(c, c0)
         step = vector_steps(d, c, c_prev, period, known)

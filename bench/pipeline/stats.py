@@ -11,7 +11,7 @@ from bench.records.events import EventKind
 from bench.records.twins import STATS_ROWS
 from protocol.batch import DecodedBatch
 
-_PER_CHANNEL = {
+_PER_CHANNEL: dict[int, str] = {
     EventKind.CRC_ERROR: "crc_errors",
     EventKind.GAP: "gaps",
     EventKind.DUPLICATE: "duplicates",
@@ -19,7 +19,7 @@ _PER_CHANNEL = {
     EventKind.STATUS_FLAG: "status_flagged",
     EventKind.COUNTER_JUMP: "counter_jumps",
 }
-_TOTALS = {
+_TOTALS: dict[int, str] = {
     EventKind.CRC_ERROR: "crc_errors",
     EventKind.WRONG_DLC: "wrong_dlc",
     EventKind.UNKNOWN_ID: "unknown_id",
@@ -121,7 +121,9 @@ class Stats:
         if count(per_kind, EventKind.SOCKET_OVERFLOW):
             self.socket_drops += int(events["value"][kinds == EventKind.SOCKET_OVERFLOW].sum())
 
-    def _count_events_scalar(self, kinds: list[int], channels: list[int], events) -> None:
+    def _count_events_scalar(
+        self, kinds: list[int], channels: list[int], events: np.ndarray
+    ) -> None:
         """count_events for the few events of a live step, without numpy calls."""
         self.events.update(kinds)
         for i, kind in enumerate(kinds):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -53,8 +54,10 @@ class _ByteRuns:
     def __init__(self, dst: np.dtype, src: np.dtype, names: list[str]) -> None:
         self.dst, self.src, self.names = dst, src, names
         runs: list[list[int]] = []  # [dst offset, src offset, size]
+        dst_fields, src_fields = dst.fields, src.fields
+        assert dst_fields is not None and src_fields is not None  # structured dtypes
         for name in names:
-            (dt, d_off), (st, s_off) = dst.fields[name][:2], src.fields[name][:2]
+            (dt, d_off), (st, s_off) = dst_fields[name][:2], src_fields[name][:2]
             assert dt == st, name
             if runs and runs[-1][0] + runs[-1][2] == d_off and runs[-1][1] + runs[-1][2] == s_off:
                 runs[-1][2] += dt.itemsize
@@ -78,14 +81,14 @@ class _ByteRuns:
                 dst[name] = src[name]
             return
         d, s = dst.view(self.dst_view), src.view(self.src_view)
-        for name in self.dst_view.names:
+        for name in self.dst_view.names or ():
             d[name] = s[name]
 
 
 _FROM_SAMPLE = _ByteRuns(
     RESULT_DTYPE, SAMPLE_DTYPE, ["n", "seq", "ticks", "t", "code", "status", "present"]
 )
-_FROM_ESTIMATE = _ByteRuns(RESULT_DTYPE, ESTIMATE_DTYPE, list(ESTIMATE_DTYPE.names))
+_FROM_ESTIMATE = _ByteRuns(RESULT_DTYPE, ESTIMATE_DTYPE, list(ESTIMATE_DTYPE.names or ()))
 
 
 @dataclass(slots=True)
@@ -292,7 +295,7 @@ class Pipeline:
 
     def _vote_event_rows(
         self, tl: list[float], nl: list[int], votes: list[list[bool]]
-    ) -> list[tuple]:
+    ) -> list[tuple[Any, ...]]:
         """Twin of :meth:`_vote_events` for the few samples of a live step (EVENT_DTYPE rows)."""
         prev = self._last_fail_mask
         masks, change = [], []

@@ -121,7 +121,7 @@ def columns_of(dtype: np.dtype, table: dict[str, tuple[tuple[str, ...], str, str
     order = [f for f in table if f in dtype.names] + [f for f in dtype.names if f not in table]
     out: list[Column] = []
     for fname in order:
-        sub = dtype.fields[fname][0]  # type: ignore[index]
+        sub = dtype[fname]
         width = int(np.prod(sub.shape)) if sub.shape else 0
         names, unit, doc = table.get(fname, ((), "", ""))
         if width:
@@ -158,7 +158,7 @@ class Layout:
         for col in self.columns:
             self.aligned.append(col)
             meta = {"unit": col.unit, "description": col.description}
-            kind = _arrow_type(dtype.fields[col.field][0])  # type: ignore[index]
+            kind = _arrow_type(dtype[col.field])
             fields.append(pa.field(col.name, kind, metadata=meta))
             if col.name == utc_after:
                 meta = {"unit": "UTC", "description": "receive time as UTC, where it is wall time"}
@@ -175,7 +175,8 @@ class Layout:
 
     @property
     def names(self) -> list[str]:
-        return self.schema.names
+        names: list[str] = self.schema.names
+        return names
 
     def batch(self, rows: np.ndarray) -> pa.RecordBatch:
         """``rows`` (of this layout's dtype) as one record batch; NaN floats become nulls."""

@@ -31,4 +31,5 @@ MAX_BRIDGE_TICKS = 3600 / TICK_S
 
 def usable(samples: np.ndarray) -> np.ndarray:
     """(N, 3) bool: channel present and none of status bits 0..3 set."""
-    return samples["present"] & ((samples["status"] & STATUS_FAULT_MASK) == 0)
+    ok: np.ndarray = samples["present"] & ((samples["status"] & STATUS_FAULT_MASK) == 0)
+    return ok

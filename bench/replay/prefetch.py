@@ -65,7 +65,7 @@ def prefetch(items: Iterable[T], depth: int = 2) -> Iterator[T]:
                 return
             if isinstance(item, _Failed):
                 raise item.exc
-            yield item  # type: ignore[misc]
+            yield item  # type: ignore[misc]  # neither _END nor _Failed: one of the items
     finally:
         stop.set()
         # a reader stuck inside one read (a pipe that never writes, a hung network file)

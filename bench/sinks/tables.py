@@ -21,7 +21,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -30,6 +30,9 @@ import pyarrow.parquet as pq
 
 from bench.records.columns import CSV_SCHEMA, RESULTS, Layout
 from bench.sinks.paths import STDOUT, check_output_file, describe_os_error
+
+if TYPE_CHECKING:
+    from bench.config import Config
 
 CSV_CHUNK_ROWS = 65_536
 """Rows per CSV write in a replay (one Arrow conversion per chunk)."""
@@ -90,7 +93,7 @@ class CsvFile:
         self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
         self._own = not isinstance(target, pa.NativeFile)
         opener = opener or open_stream  # looked up now: a test may stand in a failing stream
-        self._out = opener(target) if self._own else target  # type: ignore[arg-type]
+        self._out = opener(target) if isinstance(target, str | Path) else target
         self._schema = _csv_schema(schema)
         self._out.write((",".join(schema.names) + "\n").encode())
         self._text_schema = pa.schema([pa.field(f.name, pa.string()) for f in self._schema])
@@ -135,7 +138,7 @@ class ParquetFile:
         self.path = str(target) if not isinstance(target, pa.NativeFile) else "<stream>"
         self._own = not isinstance(target, pa.NativeFile)
         opener = opener or open_stream  # looked up now: a test may stand in a failing stream
-        self._out = opener(target) if self._own else target  # type: ignore[arg-type]
+        self._out = opener(target) if isinstance(target, str | Path) else target
         if metadata:
             schema = schema.with_metadata({**(schema.metadata or {}), **metadata})
         self._writer = pq.ParquetWriter(self._out, schema, compression="zstd")
@@ -376,7 +379,7 @@ def _open(cls: type, target: str | Path, what: str, **kw: Any) -> Any:
         raise BenchError(f"{target}: cannot write the {what}: {describe_os_error(exc)}") from None
 
 
-def results_metadata(config: object, source: str) -> dict[str, str]:
+def results_metadata(config: Config, source: str) -> dict[str, str]:
     """File-level metadata of a results Parquet file: the calibration (as TOML, as `--config`
     reads it) and where it came from, the source log, the bench version."""
     from bench import __version__
@@ -384,6 +387,6 @@ def results_metadata(config: object, source: str) -> dict[str, str]:
     return {
         "bench.version": __version__,
         "bench.source": str(source),
-        "bench.calibration": config.to_toml(),  # type: ignore[attr-defined]
-        "bench.calibration_source": config.describe(),  # type: ignore[attr-defined]
+        "bench.calibration": config.to_toml(),
+        "bench.calibration_source": config.describe(),
     }

@@ -71,7 +71,7 @@ KEY_HELP = {
     "step": "replay: one sample on",
     "next_failure": "replay: run to the next event of the target (t), pause there",
     "seek_target": "replay: what j runs to: vote failure, INVALID, exclusion, fault, mark",
-    "back": "replay: back 10 s of log time (computed again from the start)",
+    "seek_back": "replay: back 10 s of log time (computed again from the start)",
     "restart": "replay: play the log again from the start",
 }
 """What the help screen says for each action (the footer's labels are kept short)."""

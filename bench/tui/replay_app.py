@@ -48,7 +48,7 @@ class ReplayApp(BenchApp):
         Binding("n", "step", "Step"),
         Binding("j", "next_failure", "Next"),
         Binding("t", "seek_target", "Target"),
-        Binding("b", "back", "Back"),
+        Binding("b", "seek_back", "Back"),
         Binding("0,home", "restart", "Restart", key_display="0", show=False),
     ]
 
@@ -106,7 +106,7 @@ class ReplayApp(BenchApp):
         return times[i] if i < len(times) else None
 
     # -- back and restart -----------------------------------------------------------------
-    def action_back(self) -> None:
+    def action_seek_back(self) -> None:
         """Show the sample ``BACK_S`` of log time before the one shown."""
         pos = self._position()
         if not math.isfinite(pos):
@@ -171,7 +171,7 @@ class ReplayApp(BenchApp):
                 f"Next {label}", f"Run to the next {label} and pause (t, j)", self._seek_to(k)
             )
         yield SystemCommand(
-            "Back 10 s", "Show the sample 10 s of log earlier (b)", self.action_back
+            "Back 10 s", "Show the sample 10 s of log earlier (b)", self.action_seek_back
         )
         yield SystemCommand(
             "Restart replay", "Play the log from the start (0)", self.action_restart

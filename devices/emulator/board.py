@@ -75,15 +75,15 @@ def adc_frames(
     ts = (timestamps.astype(np.int64) & 0xFFFF)[:, None]
     data[:, :, 5] = ts & 0xFF
     data[:, :, 6] = ts >> 8
-    data = data.reshape(-1, 8)
+    flat = data.reshape(-1, 8)
     ids = np.tile(np.array([base_id + 1, base_id + 2, base_id + 3], dtype=np.uint32), n)
-    data[:, 7] = frame_crc8_batch(ids, data)
+    flat[:, 7] = frame_crc8_batch(ids, flat)
     when = np.repeat(sample_us, 3)
     return FrameSet(
         queue_us=when + latency_us,
         when_us=when,
         can_id=ids,
-        data=data,
+        data=flat,
         kind=np.full(3 * n, FrameKind.ADC, dtype=np.uint8),
         channel=np.tile(np.array([1, 2, 3], dtype=np.uint8), n),
         seq=np.repeat(np.arange(n, dtype=np.int64), 3),

@@ -55,15 +55,18 @@ def target_channels(fault: Fault) -> tuple[int, ...]:
 def frame_targets(fault: Fault, kind: np.ndarray, channel: np.ndarray) -> np.ndarray:
     """Which frames of a sequence a frame-level fault's target names."""
     t = fault.target
+    hit: np.ndarray
     if isinstance(t, int):
-        return (kind == FrameKind.ADC) & (channel == t)
-    if t == "adc":
-        return kind == FrameKind.ADC
-    if t == "status":
-        return kind == FrameKind.STATUS
-    if t == "speed":
-        return kind == FrameKind.SPEED
-    return np.ones(len(kind), dtype=bool)  # "bus"
+        hit = (kind == FrameKind.ADC) & (channel == t)
+    elif t == "adc":
+        hit = kind == FrameKind.ADC
+    elif t == "status":
+        hit = kind == FrameKind.STATUS
+    elif t == "speed":
+        hit = kind == FrameKind.SPEED
+    else:  # "bus"
+        hit = np.ones(len(kind), dtype=bool)
+    return hit
 
 
 def pick(mask: np.ndarray, probability: float, rng: np.random.Generator) -> np.ndarray:
@@ -180,7 +183,7 @@ def flip_bits(data: np.ndarray, rows: np.ndarray, rng: np.random.Generator) -> N
 def packet_valid(body: bytes) -> bool:
     """Would a receiver accept this packet (the bytes before its 0x00)? ICD section 2."""
     try:
-        out = cobs.decode(body)
+        out: bytes = cobs.decode(body)
     except cobs.DecodeError:
         return False
     if len(out) < 5 or len(out) != 3 + out[2] + 2:

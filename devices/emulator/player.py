@@ -20,6 +20,7 @@ import time
 import tty
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +28,9 @@ from devices.cpu_placement import live_cpus, pin_thread
 from devices.emulator.scenario import Scenario, load_scenario
 from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
 from devices.errors import BenchError
+
+if TYPE_CHECKING:
+    import can  # imported where used: starting a replay need not load python-can
 
 
 class _PacedPlayer(threading.Thread):
@@ -125,7 +129,7 @@ class CanPlayer(_PacedPlayer):
     def __init__(
         self,
         sim: Simulation,
-        bus: object,
+        bus: can.BusABC,
         *,
         speed: float = 1.0,
         own_bus: bool = True,
@@ -145,7 +149,7 @@ class CanPlayer(_PacedPlayer):
         f = self.simulation.frames
         ids = f["id"][i:j].tolist()
         payload = f["data"][i:j].tobytes()
-        send = self.bus.send  # type: ignore[attr-defined]
+        send = self.bus.send
         for k, can_id in enumerate(ids):
             msg = can.Message(
                 arbitration_id=can_id, data=payload[8 * k : 8 * k + 8], is_extended_id=False
@@ -162,7 +166,7 @@ class CanPlayer(_PacedPlayer):
     def _close(self) -> None:
         if self._own_bus:
             with contextlib.suppress(Exception):
-                self.bus.shutdown()  # type: ignore[attr-defined]
+                self.bus.shutdown()
 
 
 class PtyPlayer(_PacedPlayer):
@@ -244,7 +248,7 @@ class PtyPlayer(_PacedPlayer):
                 os.close(fd)
 
 
-def _open_virtual(channel: str) -> object:
+def _open_virtual(channel: str) -> can.BusABC:
     import can
 
     try:

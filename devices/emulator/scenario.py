@@ -168,7 +168,8 @@ class Fault:
 
 
 def _nominal_channels() -> tuple[ChannelModel, ChannelModel, ChannelModel]:
-    return tuple(ChannelModel(a) for a in NOMINAL_ANGLES_DEG)  # type: ignore[return-value]
+    a1, a2, a3 = NOMINAL_ANGLES_DEG
+    return ChannelModel(a1), ChannelModel(a2), ChannelModel(a3)
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,7 +240,7 @@ def _parse_train(file: str, items: list[Any]) -> tuple[TrainPhase, ...]:
     return tuple(out)
 
 
-def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
+def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ChannelModel, ChannelModel]:
     if not items:
         return _nominal_channels()
     if len(items) != 3:
@@ -266,7 +267,7 @@ def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ...]:
     angles = [c.angle_deg for c in out]
     if len(set(angles)) < 3:
         raise ConfigError(f"{file}: channels: the three angle_deg values must differ, got {angles}")
-    return tuple(out)
+    return out[0], out[1], out[2]
 
 
 def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
@@ -377,7 +378,7 @@ def _status_bits(t: Table, key: str) -> int:
 
 def _parse_target(t: Table, kind: str) -> int | str:
     t.require("channel", "1..3, or one of adc, status, speed, bus, uart")
-    v = t.raw("channel")
+    v: int | str = t.raw("channel")
     if kind in UART_KINDS:
         allowed: tuple[Any, ...] = ("uart",)
     elif kind in SIGNAL_KINDS:
@@ -512,7 +513,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         description=top.text("description", ""),
         track=_parse_track(source, top.array("track")),
         train=_parse_train(source, top.array("train")),
-        channels=_parse_channels(source, top.array("channels")),  # type: ignore[arg-type]
+        channels=_parse_channels(source, top.array("channels")),
         board=_parse_board(source, top.raw("board", {}), rate),
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),

@@ -49,7 +49,7 @@ TRUTH_DTYPE = np.dtype(
         ("position_m", "<f8"),
     ]
 )
-TRUTH_COLUMNS = TRUTH_DTYPE.names
+TRUTH_COLUMNS: tuple[str, ...] = TRUTH_DTYPE.names or ()
 
 ODOMETER_TRUTH_DTYPE = np.dtype(
     [

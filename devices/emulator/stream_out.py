@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 from typing import IO, Any
 
@@ -69,9 +70,7 @@ def write_streamed(
             first = True
             for chunk in simulate_chunks(sc, uart=suffix == ".bin", chunk_s=chunk_s, counts=counts):
                 if truth_file is not None:
-                    _guarded(
-                        truth, lambda c=chunk, h=first: write_truth_rows(truth_file, c.truth, h)
-                    )
+                    _guarded(truth, partial(write_truth_rows, truth_file, chunk.truth, first))
                     truth_rows[0] += len(chunk.truth)
                 first = False
                 yield chunk
@@ -85,7 +84,7 @@ def write_streamed(
         elif suffix == ".bin":
             f = _open(stack, p)
             for chunk in chunks():
-                _guarded(p, lambda c=chunk: f.write(c.uart))
+                _guarded(p, partial(f.write, chunk.uart))
             line = (
                 f"wrote {counts.packets} UART packets ({counts.uart_bytes} bytes, "
                 f"{counts.packets_broken} broken by UART faults) to {p}"

@@ -95,7 +95,8 @@ def board_temperature(board: BoardModel, t: np.ndarray) -> np.ndarray:
     if board.temperature_end_c is None:
         return np.full_like(t, t0)
     end = board.temperature_end_c
-    return end + (t0 - end) * np.exp(-np.maximum(t, 0.0) / board.temperature_tau_s)
+    temp: np.ndarray = end + (t0 - end) * np.exp(-np.maximum(t, 0.0) / board.temperature_tau_s)
+    return temp
 
 
 @dataclass(frozen=True, slots=True)

@@ -78,7 +78,7 @@ def check_fault_detected(spec: CheckSpec, run: RunData) -> Measurement:
     if not faults:
         return not_measured(spec, "error", "no injected fault matches this check")
     sources = tuple(spec.get("flagged_by") or FLAG_SOURCES)
-    per_fault = []
+    per_fault: list[dict[str, object]] = []
     worst: float | None = -1.0
     texts = []
     for f in faults:

@@ -86,12 +86,12 @@ def channel_table(row: np.void | None, stats: Stats, rates: list[float]) -> Tabl
             else:
                 cells.append(Text("ok", style="green"))
         row3("status", cells)
-    ch = stats.channels
+    chans = stats.channels
     row3("rate Hz", [num(r, ".1f") for r in rates])
-    row3("frames", [f"{c.frames}" for c in ch])
-    row3("gaps", [_count(c.gaps) for c in ch])
-    row3("dup/late", [_count(c.duplicates + c.late, f"{c.duplicates}/{c.late}") for c in ch])
-    row3("CRC err", [_count(c.crc_errors) for c in ch])
+    row3("frames", [f"{c.frames}" for c in chans])
+    row3("gaps", [_count(c.gaps) for c in chans])
+    row3("dup/late", [_count(c.duplicates + c.late, f"{c.duplicates}/{c.late}") for c in chans])
+    row3("CRC err", [_count(c.crc_errors) for c in chans])
     return table
 
 

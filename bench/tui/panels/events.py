@@ -15,9 +15,11 @@ from __future__ import annotations
 import re
 import time
 from dataclasses import dataclass
+from typing import Any
 
 from rich.text import Text
 from textual.widgets import DataTable
+from textual.widgets.data_table import RowKey
 
 from bench.records.events import EventKind, severity
 
@@ -52,7 +54,7 @@ class Row:
     count: int = 1
     first_n: int = -1
     last_n: int = -1
-    row_key: object = None  # the table row showing it (None: filtered out or not yet added)
+    row_key: RowKey | None = None  # the table row showing it (None: filtered out or not yet added)
 
     def label(self) -> Text:
         style = "bold magenta" if self.kind == EventKind.MARK else STYLE.get(severity(self.kind))
@@ -111,14 +113,14 @@ def merge_events(
     return added, list(changed.values())
 
 
-class _EventTable(DataTable):  # type: ignore[type-arg]
+class _EventTable(DataTable):
     """A two-column (time, text) log, newest at the bottom; follows the newest row unless
     the operator has clicked in and scrolled up."""
 
     TITLE = "Events"
 
-    def __init__(self, **kwargs: object) -> None:
-        super().__init__(show_header=False, cursor_type="none", cell_padding=0, **kwargs)  # type: ignore[arg-type]
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(show_header=False, cursor_type="none", cell_padding=0, **kwargs)
         self._rows: list[Row] = []
         self.clock = "UTC"
 
@@ -142,7 +144,7 @@ class _EventTable(DataTable):  # type: ignore[type-arg]
     def _shown(self, row: Row) -> bool:
         return True
 
-    def _add(self, row: Row) -> object:
+    def _add(self, row: Row) -> RowKey:
         return self.add_row(row.when(), row.label())
 
     def _put(self, added: list[Row], changed: list[Row]) -> None:
@@ -151,8 +153,8 @@ class _EventTable(DataTable):  # type: ignore[type-arg]
         follow = not self.has_focus or self.scroll_y >= self.max_scroll_y - 1
         for row in changed:
             if row.row_key is not None:
-                self.update_cell(row.row_key, "time", row.when())  # type: ignore[arg-type]
-                self.update_cell(row.row_key, "event", row.label())  # type: ignore[arg-type]
+                self.update_cell(row.row_key, "time", row.when())
+                self.update_cell(row.row_key, "event", row.label())
         for row in added[-MAX_ROWS:]:
             if self._shown(row):
                 row.row_key = self._add(row)
@@ -161,7 +163,7 @@ class _EventTable(DataTable):  # type: ignore[type-arg]
         if excess > 0:
             for old in self._rows[:excess]:
                 if old.row_key is not None:
-                    self.remove_row(old.row_key)  # type: ignore[arg-type]
+                    self.remove_row(old.row_key)
             del self._rows[:excess]
         if follow:
             self.scroll_end(animate=False, immediate=False)
@@ -191,7 +193,7 @@ class MarksPanel(_EventTable):
     def _columns(self) -> None:
         self.add_column("mark", key="event", width=MARK_WIDTH)
 
-    def _add(self, row: Row) -> object:
+    def _add(self, row: Row) -> RowKey:
         text = Text(stamp(row.t)[:8] + " ", style="dim")
         text.append(row.text.removeprefix("MARK "), style="bold magenta")
         return self.add_row(text, height=None)

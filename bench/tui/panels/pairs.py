@@ -192,7 +192,8 @@ class PairsPanel(Vertical):
         self.values = {"final": final_text(row).strip(), "state": state, "ours": ours.strip()}
         self.values["ours_kind"] = kind
         if window is not None:
-            self.values.update(zip(("ours_mean", "ours_min", "ours_max"), window, strict=True))
+            shown = (num(v, ".3f") for v in window)
+            self.values.update(zip(("ours_mean", "ours_min", "ours_max"), shown, strict=True))
         if row is not None:
             for k in range(3):
                 self.values[PAIR_NAMES[k]] = num(row["slopes"][k], ".3f")
