@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         runner.stop()
         setup.close()
     try:
-        return _report(args, runner, setup, recording, start, tty)
+        return _report(args, runner, setup, recording, start, tty, stopped=bool(signalled))
     finally:
         # after a signal the process is on its way out: stay deaf to repeats, also through
         # interpreter teardown (which resets Python-level handlers, but not SIG_IGN)
@@ -163,8 +163,10 @@ def _report(
     recording: Any,
     start: float,
     tty: bool,
+    stopped: bool = False,
 ) -> int:
-    """The closing lines of a run; returns the exit code."""
+    """The closing lines of a run; returns the exit code (``stopped``: by a signal, the
+    operator's own end, so a run stopped before its first frame says so but is no error)."""
     if tty and not args.quiet:
         print(file=sys.stderr)
     snap = runner.snapshot(last=1)
@@ -203,7 +205,9 @@ def _report(
     lost = any(getattr(s, "rows_lost", 0) for s in runner_sinks(runner))
     silent = runner.frames_received == 0
     if silent:  # a channel name typo on a virtual bus looks just like this: say so, exit 1
-        print(f"bench: error: {nothing_received(setup.description, start)}", file=sys.stderr)
+        kind = "" if stopped else "error: "
+        print(f"bench: {kind}{nothing_received(setup.description, start)}", file=sys.stderr)
+        silent = not stopped
     return 1 if (runner.error or log_error or runner.output_errors or lost or silent) else 0
 
 
