@@ -9,7 +9,6 @@ exactly, NaN equal to NaN: "no differences" means the CSVs are identical.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -148,16 +147,3 @@ def compare_results(
         only_recorded_n=recorded["n"][only_a[:max_examples]].tolist(),
         only_recomputed_n=recomputed["n"][only_b[:max_examples]].tolist(),
     )
-
-
-def print_comparison(report: CompareReport, console: Any = None) -> None:
-    """Print the report (to a rich Console when given: green when identical, else red)."""
-    text = report.format()
-    if console is None:
-        print(text)
-        return
-    style = "green" if report.identical else "bold red"
-    lines = text.splitlines()
-    console.print(lines[0], style=style, markup=False, highlight=False)
-    for line in lines[1:]:
-        console.print(line, markup=False, highlight=False)

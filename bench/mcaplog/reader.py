@@ -105,7 +105,6 @@ class McapLog:
         self.chunks: list[ChunkInfo] = []
         self.metadata: list[tuple[str, dict[str, str]]] = []
         self.attachments: list[AttachmentInfo] = []
-        self.loose_messages = 0
         self.data_end: int | None = None  # offset of the DataEnd record
         self.data_section_crc = 0
         self.summary_ok = False
@@ -116,7 +115,6 @@ class McapLog:
         self.warnings: list[str] = []
         self.bad_chunks: list[tuple[ChunkInfo, str]] = []
         self.damage: list[str] = []  # what the scan stepped over (see recovery.resync)
-        self.lost_frames = 0  # frames in the damage, from the summary's statistics
         self._summary = SummaryAhead()
         self._zstd: Any = None
         try:
@@ -232,7 +230,6 @@ class McapLog:
                     bad = f"malformed record (opcode 0x{op:02X}) at byte {pos}: {exc}"
                 else:
                     if op == OP_MESSAGE:
-                        self.loose_messages += 1
                         loose = [pos, end] if loose is None else [loose[0], end]
                     elif op == OP_DATA_END:
                         self.scan_end = end
@@ -334,7 +331,6 @@ class McapLog:
         n = frames_lost_to_damage(self.chunks, fid, self.statistics, self.decompress, unindexed)
         lost = ""
         if n is not None:
-            self.lost_frames = n
             lost = f"; {n} frames lost" if n else "; no frames lost"
         self.damage = [d + lost for d in self.damage]
         self.warnings += [f"{self.path}: {d}" for d in self.damage]
