@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import threading
 import time
 from collections import Counter
 from pathlib import Path
@@ -250,20 +251,23 @@ def test_write_never_blocks_and_counts_drops(
     from bench.mcaplog import encoder as W
 
     slow = W.MessageEncoder.write_frames
+    release = threading.Event()  # the writer is stuck until the test has written everything
+    timed_out: list[bool] = []
 
     def slow_write(self, *a, **k):  # type: ignore[no-untyped-def]
-        time.sleep(0.05)
+        # a write() that waited for the writer would hold it here until the hang guard expires
+        timed_out.append(not release.wait(30))
         return slow(self, *a, **k)
 
     monkeypatch.setattr(W.MessageEncoder, "write_frames", slow_write)
     stream = synthetic_stream(seconds=1.0, faults=False)
     path = tmp_path / "slow.mcap"
     sink = McapSink(path, Config(), {}, queue_size=2)
-    t0 = time.perf_counter()
     for i in range(0, len(stream.frames), 10):
         sink.write(StepOutput(frames=stream.frames[i : i + 10], outcome=np.zeros(10, np.uint8)))
-    assert time.perf_counter() - t0 < 0.5  # never waited for the 50 ms writes
+    release.set()
     sink.close()
+    assert not any(timed_out)  # every write() returned while the writer was stuck
     assert sink.dropped > 0
     frames, _, _ = read_frames(path)
     assert len(frames) + sink.dropped == len(stream.frames)
