@@ -81,13 +81,29 @@ def sent_lines(out: str) -> list[tuple[float, int]]:
     return rows
 
 
+def sent_for(proc: subprocess.Popen[str], seconds: float) -> str:
+    """The writer's lines until it has sent `seconds` of stream (no wall-clock sleep)."""
+    assert proc.stdout is not None
+    lines: list[str] = []
+    first: float | None = None
+    for line in proc.stdout:
+        lines.append(line)
+        rows = sent_lines(line)
+        if rows:
+            first = rows[0][0] if first is None else first
+            if rows[0][0] - first >= seconds:
+                break
+    return "".join(lines)
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_kill_9_loses_at_most_about_a_second(tmp_path: Path) -> None:
     path = tmp_path / "killed.mcap"
     proc = start_writer(path)
-    time.sleep(2.5)
+    early = sent_for(proc, 2.5)
     os.kill(proc.pid, signal.SIGKILL)
     out, _ = proc.communicate(timeout=10)
+    out = early + out
     sent = sent_lines(out)
     assert len(sent) > 100
     last_sent_t, total = sent[-1]
@@ -111,9 +127,10 @@ def test_kill_9_of_the_bench_leaves_a_finished_file_with_the_writer_process(
     handed over (all but the last group interval) is in a complete file."""
     path = tmp_path / "killed-parent.mcap"
     proc = start_writer(path, sink=PROCESS_SINK)
-    time.sleep(2.5)
+    early = sent_for(proc, 2.5)
     os.kill(proc.pid, signal.SIGKILL)
     out, _ = proc.communicate(timeout=10)
+    out = early + out
     sent = sent_lines(out)
     last_sent_t, total = sent[-1]
     deadline = time.monotonic() + 20
