@@ -156,6 +156,12 @@ def test_no_frame_loss() -> None:
     assert m.value == 10 and m.verdict == "fail" and "by 10 frames" in m.detail
     board = run(frames_sent=None, frames_received=3000, frames_logged=3000, frames_dropped=4)
     assert run_check(spec("no_frame_loss", max_frames=5), board).value == 4
+    # frames the kernel dropped at a full socket buffer (SOCKET_OVERFLOW notices, 2 + 9)
+    # are lost too, though the pipeline never saw them to count them received
+    kernel = make_events(EventKind.SOCKET_OVERFLOW, [1001.0, 1002.0], 0, -1, [2, 9])
+    real = run(frames_sent=None, frames_received=3000, frames_logged=3000, events=kernel)
+    m = run_check(spec("no_frame_loss"), real)
+    assert m.value == 11 and m.verdict == "fail" and "dropped by the kernel 11" in m.detail
 
 
 def test_vote_failures_jump_events() -> None:

@@ -79,3 +79,74 @@ def test_compare_without_a_new_config_is_identical_both_ways(
 def test_plan_needs_compare(level_run: Path, capsys) -> None:
     assert main(["replay", str(level_run), "--plan", "level"]) == 2
     assert "--plan judges a plan's checks both ways: it needs --compare" in capsys.readouterr().err
+
+
+def record_foreign_run(path: Path, dropped: int) -> None:
+    """A recorded run that is not plan level's: 4 s of another scenario through the
+    pipeline into an MCAP file, with ``dropped`` frames recorded as lost by the acquisition
+    queue (the DROPPED event a live runner writes)."""
+    from bench.acceptance.feeds import can_batches
+    from bench.config import Config
+    from bench.mcaplog.sink import McapSink
+    from bench.pipeline.steps import Pipeline, StepOutput
+    from bench.records.events import EventKind, make_events
+    from bench.replay.run import run_steps
+    from devices.emulator import scenario_from_dict, simulate
+
+    sim = simulate(
+        scenario_from_dict({"seed": 5, "duration_s": 4.0, "sample_rate_hz": 200}, "foreign")
+    )
+    config = Config(sample_rate_hz=200)
+    sink = McapSink(path, config, {"source": "a foreign board"})
+    try:
+        for step in run_steps(Pipeline(config), can_batches(sim.frames, 4096)):
+            sink.write(step)
+        if dropped:
+            sink.write(StepOutput(events=make_events(EventKind.DROPPED, 1.0, 0, -1, dropped)))
+    finally:
+        sink.close()
+
+
+@pytest.mark.parametrize("dropped", [0, 7])
+def test_compare_judges_a_foreign_log_by_what_its_recording_lost(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys, dropped: int
+) -> None:
+    """Issue 28: "no frame lost FAIL 3.35e+05 frames" on a log of another run -- its frames
+    were counted against plan level's simulated scenario. Now the check counts what the
+    recording lost (its DROPPED events), and the checks that need the plan's truth are
+    skipped with a note, since this log is not a run of that scenario."""
+    monkeypatch.setenv("COLUMNS", "80")
+    log = tmp_path / "foreign.mcap"
+    record_foreign_run(log, dropped)
+    main(["replay", str(log), "--compare", "--plan", "level", "-q"])
+    out = capsys.readouterr().out
+    table = rows(out)
+    want = "FAIL 7 frames" if dropped else "PASS 0 frames"
+    assert table["no frame lost"] == [want, want]
+    assert table["bench estimator at standstill"] == ["SKIP", "SKIP"]  # needs the truth
+    assert table["device availability near level"][0].split()[0] in ("PASS", "WARN", "FAIL")
+    assert "foreign.mcap recorded a foreign board, not plan level's scenario" in out
+
+
+def test_compare_replays_each_calibration_once(
+    level_run: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys
+) -> None:
+    """The replay the command does is the "after" side; "before" is replayed again only
+    when its calibration differs (same calibration, same pipeline: the same results)."""
+    from bench.acceptance import whatif
+
+    calls: list[str] = []
+    real = whatif.replay_side
+
+    def counting(path: Path, config: object, label: str) -> whatif.Side:
+        calls.append(label)
+        return real(path, config, label)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(whatif, "replay_side", counting)
+    assert main(["replay", str(level_run), "--compare", "--plan", "level", "-q"]) == 0
+    assert calls == []
+    tilted = tmp_path / "tilted.toml"
+    tilted.write_text("[[channels]]\nangle_deg = 30.3\n[[channels]]\n[[channels]]\n")
+    main(["replay", str(level_run), "--compare", "--config", str(tilted), "-q"])
+    assert calls == ["before (recorded)"]
+    capsys.readouterr()

@@ -5,12 +5,19 @@ Before = the run's frames through the pipeline with the calibration it recorded 
 reproduces its recorded results bit for bit); after = the same frames with ``--config``.
 Both sides go through one pipeline, so the only difference is the calibration. The answer
 is one table: validity and vote failures both ways and, given a plan, every check's
-verdict both ways. What a log cannot hold (emulator truth, the faults' record, operator
-step windows) comes from the plan's scenario, simulated again (it is seeded).
+verdict both ways.
+
+What the checks judge is the recording. Frames lost are the frames the recording says were
+lost (its queue drops, its writer's count against the frames in the file, the kernel's
+socket overflows), not frames of the log counted against a simulation. What a log cannot
+hold (emulator truth, the faults' record, operator step windows) comes from the plan's
+scenario, simulated again (it is seeded), but only when the log is a run of that scenario
+(the scenario it recorded is the plan's); otherwise the checks that need it are skipped.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +27,7 @@ from rich import box
 from rich.table import Table
 
 from bench.acceptance.answers import schedule_steps
+from bench.acceptance.checks.base import KINDS, not_measured
 from bench.acceptance.checks.registry import run_check
 from bench.acceptance.expectation import result, status_of
 from bench.acceptance.feeds import BATCH_FRAMES, fault_infos
@@ -29,6 +37,7 @@ from bench.acceptance.runner import Collector, count_logged_frames
 from bench.config import Config
 from bench.pipeline.stats import Stats
 from bench.pipeline.steps import Pipeline
+from bench.records.events import EventKind
 from bench.replay.run import run_steps
 
 LABEL_WIDTH = 34
@@ -64,14 +73,57 @@ def replay_side(path: str | Path, config: Config, label: str) -> Side:
     return Side(label, config, collector.results(), collector.events(), pipeline.stats)
 
 
-def plan_run_data(plan: Plan, side: Side, path: str | Path, sim: Any) -> RunData:
-    """What the plan's checks measure, from one side's results and events."""
+def same_calibration(a: Config, b: Config) -> bool:
+    """True when the pipeline computes the same with either (only where they came from
+    differs): one side's replay then serves both."""
+    return dataclasses.replace(a, source="", path=None) == dataclasses.replace(
+        b, source="", path=None
+    )
+
+
+@dataclass(frozen=True, slots=True)
+class Recording:
+    """What a log says of its own run: the frames its pipeline was given, the frames in the
+    file, the frames its queues dropped, and whether it is a run of the plan's scenario."""
+
+    frames_received: int | None  # the summary's count (None: no summary, a cut file)
+    frames_logged: int
+    frames_dropped: int  # DROPPED events: the acquisition queue's and the writer's
+    of_plan: bool  # the scenario it recorded is the plan's (so the plan's truth applies)
+    source: str  # what it recorded, for the note when it is not the plan's run
+
+
+def read_recording(plan: Plan, path: str | Path) -> Recording:
+    from bench.mcaplog.recorded import read_attachments, read_events, read_metadata
+
+    meta = read_metadata(path)
+    received = meta.get("summary", {}).get("frames")
+    dropped = sum(
+        int(e.get("value") or 0) for e in read_events(path) if e.get("kind") == EventKind.DROPPED
+    )
+    of_plan = False
+    if plan.scenario is not None:
+        recorded = read_attachments(path).get("scenario.toml")
+        of_plan = recorded is not None and recorded == plan.scenario_toml().encode()
+    return Recording(
+        frames_received=int(received) if received is not None and received.isdigit() else None,
+        frames_logged=count_logged_frames(Path(path)),
+        frames_dropped=dropped,
+        of_plan=of_plan,
+        source=meta.get("run", {}).get("source", "an unknown source"),
+    )
+
+
+def plan_run_data(plan: Plan, side: Side, recording: Recording, sim: Any) -> RunData:
+    """What the plan's checks measure, from one side's results and events and what the
+    recording says of its frames; ``sim`` is the plan's scenario when the log is its run."""
     res = side.results
     if sim is not None:
         n_ref, rate = int(sim.scenario.counter0), float(sim.scenario.sample_rate_hz)
     else:
         n_ref, rate = (int(res["n"][0]) if len(res) else 0), float(side.config.sample_rate_hz)
     emulated = sim is not None
+    received = recording.frames_received
     return RunData(
         results=res,
         events=side.events,
@@ -79,25 +131,43 @@ def plan_run_data(plan: Plan, side: Side, path: str | Path, sim: Any) -> RunData
         n_ref=n_ref,
         truth_gradient=sim.truth["gradient_permil"].copy() if emulated else None,
         faults=fault_infos(sim, plan.link) if emulated else (),
-        frames_sent=len(sim.frames) if emulated and plan.link == "can" else None,
-        frames_received=side.stats.frames,
-        frames_logged=count_logged_frames(Path(path)),
+        frames_sent=None,  # what was sent is not in a log: its own losses are
+        frames_received=received if received is not None else side.stats.frames,
+        frames_logged=recording.frames_logged,
+        frames_dropped=recording.frames_dropped,
         steps=schedule_steps(plan.steps, None) if emulated else (),
         mode="replay",
         link=plan.link,
     )
 
 
-def measure(plan: Plan, sides: list[Side], path: str | Path) -> None:
-    """Every check of ``plan`` on each side (in place)."""
+def measure(plan: Plan, sides: list[Side], path: str | Path) -> str | None:
+    """Every check of ``plan`` on each side (in place); a note when the log is not a run of
+    the plan's scenario (the checks that need its truth or steps are skipped then)."""
+    recording = read_recording(plan, path)
     sim = None
-    if plan.scenario is not None:
+    if plan.scenario is not None and recording.of_plan:
         from devices.emulator import simulate
 
         sim = simulate(plan.scenario)
+    foreign = plan.scenario is not None and not recording.of_plan
+    why = (
+        f"{Path(path).name} is not a run of plan {plan.name}'s scenario: no truth, faults or steps"
+    )
     for side in sides:
-        run = plan_run_data(plan, side, path, sim)
-        side.measurements = [run_check(c, run) for c in plan.checks]
+        run = plan_run_data(plan, side, recording, sim)
+        side.measurements = [
+            not_measured(c, "skip", why)
+            if foreign and (KINDS[c.kind].needs_truth or KINDS[c.kind].needs_steps)
+            else run_check(c, run)
+            for c in plan.checks
+        ]
+    if not foreign:
+        return None
+    return (
+        f"note: {Path(path).name} recorded {recording.source}, not plan {plan.name}'s "
+        "scenario: the checks that need its truth, faults or steps are skipped"
+    )
 
 
 def _pct(count: int, total: int) -> str:

@@ -110,7 +110,12 @@ def run(args: argparse.Namespace) -> int:
         raise
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
-    collect = bool(args.compare)
+    collected = None
+    if args.compare:  # this replay is the comparison's "after" side: keep its events too
+        from bench.acceptance.runner import Collector
+
+        collected = Collector()
+        sinks.append(collected)
     try:
         if show:
             columns = (
@@ -126,11 +131,11 @@ def run(args: argparse.Namespace) -> int:
                     source,
                     config,
                     sinks,
-                    collect=collect,
+                    collect=False,
                     on_progress=lambda pos: progress.update(task, completed=pos),
                 )
         else:
-            outcome = replay(source, config, sinks, collect=collect)
+            outcome = replay(source, config, sinks, collect=False)
     except BaseException:
         _close_all(sinks)  # the first failure is the one to tell
         raise
@@ -147,8 +152,12 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"[yellow]warning:[/] ... and {rest} more (see the summary counts)")
     if not args.quiet:
         print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=console)
-    if args.compare:
-        return _compare(args, config, outcome.results, plan, Console())
+    if collected is not None:
+        from bench.acceptance.whatif import Side
+
+        label = "after (--config)" if args.config else "after (recomputed)"
+        after = Side(label, config, collected.results(), collected.events(), outcome.pipeline.stats)
+        return _compare(args, after, plan, Console())
     return 0
 
 
@@ -159,25 +168,28 @@ def _close_all(sinks: list) -> None:
             sink.close()
 
 
-def _compare(
-    args: argparse.Namespace, config: Config, recomputed: Any, plan: Any, console: Console
-) -> int:
-    """Before (the recorded calibration) against after (this replay's) in one table."""
-    from bench.acceptance.whatif import comparison_table, measure, replay_side
+def _compare(args: argparse.Namespace, after: Any, plan: Any, console: Console) -> int:
+    """Before (the recorded calibration) against after (this replay's) in one table. The
+    replay just done is the after side; before is replayed only when its calibration
+    differs (the same calibration gives the same results: one replay serves both)."""
+    import dataclasses
+
+    from bench.acceptance.whatif import comparison_table, measure, replay_side, same_calibration
     from bench.mcaplog.compare import compare_results
     from bench.mcaplog.recorded import read_results, recorded_config
 
     recorded = recorded_config(args.input) or Config()
-    before = replay_side(args.input, recorded, "before (recorded)")
-    after = replay_side(
-        args.input, config, "after (--config)" if args.config else "after (recomputed)"
-    )
-    if plan is not None:
-        measure(plan, [before, after], args.input)
-    report = compare_results(read_results(args.input), recomputed)
+    if same_calibration(recorded, after.config):
+        before = dataclasses.replace(after, label="before (recorded)", config=recorded)
+    else:
+        before = replay_side(args.input, recorded, "before (recorded)")
+    note = measure(plan, [before, after], args.input) if plan is not None else None
+    report = compare_results(read_results(args.input), after.results)
     print(f"before: {recorded.describe()}")
-    print(f"after:  {config.describe()}")
+    print(f"after:  {after.config.describe()}")
     console.print(comparison_table(before, after, report.rows_differing, plan))
+    if note:
+        console.print(note, highlight=False, markup=False)
     if report.identical:
         line = f"compare: identical ({report.matched_rows} rows match the recording exactly)"
     else:

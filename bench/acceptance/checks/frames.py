@@ -14,14 +14,19 @@ from bench.acceptance.checks.base import (
     register,
 )
 from bench.acceptance.model import Measurement, RunData
+from bench.records.events import EventKind
 
 
 def check_no_frame_loss(spec: CheckSpec, run: RunData) -> Measurement:
     """Frames lost anywhere between the sender and the log: sent vs received (emulated),
-    received vs logged in run.mcap (counted from the file), and frames a full acquisition
-    queue dropped (live). Counts that do not apply to a run are left out."""
+    received vs logged in run.mcap (counted from the file), frames a full acquisition
+    queue dropped (live; a replay: the DROPPED events its recording holds) and frames the
+    kernel dropped at a full socket buffer (SOCKET_OVERFLOW events). Counts that do not
+    apply to a run are left out."""
     parts = []
-    losses = [run.frames_dropped]
+    overflow = run.events[run.events["kind"] == EventKind.SOCKET_OVERFLOW]
+    kernel = int(overflow["value"].sum()) if len(overflow) else 0
+    losses = [run.frames_dropped, kernel]
     if run.frames_sent is not None:
         losses.append(run.frames_sent - run.frames_received)
         parts.append(f"sent {run.frames_sent}")
@@ -33,6 +38,8 @@ def check_no_frame_loss(spec: CheckSpec, run: RunData) -> Measurement:
         parts.append("logged: not counted")
     if run.frames_dropped:
         parts.append(f"dropped by a full queue {run.frames_dropped}")
+    if kernel:
+        parts.append(f"dropped by the kernel {kernel}")
     lost = max(abs(v) for v in losses)
     return judge(
         spec,
@@ -42,6 +49,7 @@ def check_no_frame_loss(spec: CheckSpec, run: RunData) -> Measurement:
         received=run.frames_received,
         logged=run.frames_logged,
         dropped=run.frames_dropped,
+        kernel_dropped=kernel,
     )
 
 
