@@ -12,37 +12,52 @@ from bench.tui.panels import MISSING, duration_text, size_text
 
 
 def recording_table(
-    status: RecordingStatus | None, last: RecordingStatus | None, stream: str | None = None
+    status: RecordingStatus | None,
+    last: RecordingStatus | None,
+    stream: str | None = None,
+    width: int | None = None,
 ) -> Table:
-    """The panel's rows; ``stream``: the live Foxglove stream's address (``--foxglove``; a
-    port chosen at start is shown nowhere else once the screen is up), on the first row."""
+    """Two lines while recording (three when the log failed): state, duration and figures;
+    the file, cut at its start to ``width`` (the name is what tells files apart), so the
+    Marks list below keeps its rows at 100x30. ``stream``: the live Foxglove stream's
+    address (``--foxglove``; a port chosen at start is shown nowhere else once the screen
+    is up), on the first row."""
     table = Table(box=None, pad_edge=False, padding=0, show_header=False, show_edge=False)
-    table.add_column(overflow="fold", ratio=1)
+    table.add_column(no_wrap=True, overflow="ellipsis", ratio=1)
     if stream:
         table.add_row(Text(f"Foxglove {stream}", style="cyan"))
     if status is None:
-        table.add_row(Text("○ not recording: press r to start", style="dim"))
-        if last:
-            table.add_row(Text("last file:", style="bold"))
-            table.add_row(str(last.path or MISSING))
-            table.add_row(_figures(last))
+        if not last:
+            table.add_row(Text("○ not recording: press r to start", style="dim"))
+            return table
+        table.add_row(Text("○ not recording (r starts)  last:", style="dim"))
+        table.add_row(_figures(last))
+        table.add_row(_path(last.path, width))
         return table
-    head = Text("● REC ", style="bold red")
-    head.append(duration_text(status.duration_s), style="bold")
+    head = Text()
+    head.append("● REC ", style="bold red")
+    head.append(duration_text(status.duration_s), style="bold red")
+    head.append("  " + _figures(status, duration=False))
+    for key, value in (("dropped", status.dropped), ("lost", status.lost)):
+        if value:
+            head.append(f"  {key} {value}", style="bold red")
     if status.queue is not None:
         head.append(f"  queue {status.queue}", style="dim")
     table.add_row(head)
     path = str(status.path or MISSING)
-    if status.error:  # before the long path, where a short panel cannot crop it away
+    if status.error:  # before the path, where a short panel cannot crop it away
         reason = status.error.removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
-    table.add_row(path)
-    line = Text(_figures(status, duration=False))
-    for key, value in (("dropped", status.dropped), ("lost", status.lost)):
-        if value:
-            line.append(f"  {key} {value}", style="bold red")
-    table.add_row(line)
+    table.add_row(_path(status.path, width))
     return table
+
+
+def _path(path: str | None, width: int | None) -> str:
+    """The path, its start replaced by … when it is wider than ``width``."""
+    text = str(path or MISSING)
+    if width is None or width < 2 or len(text) <= width:
+        return text
+    return "…" + text[len(text) - width + 1 :]
 
 
 def _figures(status: RecordingStatus, *, duration: bool = True) -> str:
@@ -58,6 +73,8 @@ def _figures(status: RecordingStatus, *, duration: bool = True) -> str:
 
 
 class RecordingPanel(Static):
+    _rows = 0  # lines shown: the panel's height (auto) is laid out again only when they change
+
     def on_mount(self) -> None:
         self.border_title = "Recording"
 
@@ -67,5 +84,7 @@ class RecordingPanel(Static):
         last: RecordingStatus | None = None,
         stream: str | None = None,
     ) -> None:
-        self.update(recording_table(status, last, stream), layout=False)
+        table = recording_table(status, last, stream, self.content_size.width or None)
+        self.update(table, layout=table.row_count != self._rows)
+        self._rows = table.row_count
         self.set_class(status is not None, "recording")
