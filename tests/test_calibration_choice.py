@@ -268,7 +268,7 @@ def test_demo_log_replays_to_the_results_shown_live(
 
     import bench.commands.tui as tui_command
 
-    def headless(session: object) -> int:
+    def headless(session: object, **app_kwargs: object) -> int:
         session.start()  # type: ignore[attr-defined]
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:

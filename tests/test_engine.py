@@ -103,15 +103,31 @@ def test_ring_keeps_the_newest_rows_in_order_across_the_wrap() -> None:
 
 def test_tap_hands_over_each_row_once_and_only_the_newest_when_behind() -> None:
     tap = RowTap(limit=6)
-    assert tap.take().dtype == RESULT_DTYPE and len(tap.take()) == 0
+    assert tap.take()[0].dtype == RESULT_DTYPE and len(tap.take()[0]) == 0
     tap.write(StepOutput(results=rows(0, 2)))
     tap.write(StepOutput(results=rows(2, 0)))
     tap.write(StepOutput(results=rows(2, 3)))
-    assert tap.take()["n"].tolist() == [0, 1, 2, 3, 4]
+    assert tap.take()[0]["n"].tolist() == [0, 1, 2, 3, 4]
     for k in range(5, 20, 3):  # the screen fell behind: it only ever shows the newest
         tap.write(StepOutput(results=rows(k, 3)))
-    assert tap.take()["n"].tolist() == [14, 15, 16, 17, 18, 19]
-    assert len(tap.take()) == 0
+    assert tap.take()[0]["n"].tolist() == [14, 15, 16, 17, 18, 19]
+    got, restart = tap.take()
+    assert len(got) == 0 and not restart
+
+
+def test_tap_replaces_previews_by_the_full_rows() -> None:
+    """While the estimator's kernel is prepared the screen gets preview rows; the first
+    full rows (from the first sample on) replace them, and the screen is told so once."""
+    tap = RowTap(limit=100)
+    tap.preview(StepOutput(results=rows(0, 3)))
+    assert tap.take()[0]["n"].tolist() == [0, 1, 2]  # shown as they come
+    tap.preview(StepOutput(results=rows(3, 2)))  # not taken yet when the full rows come
+    tap.write(StepOutput(results=rows(0, 5)))
+    tap.write(StepOutput(results=rows(5, 1)))
+    got, restart = tap.take()
+    assert restart and got["n"].tolist() == [0, 1, 2, 3, 4, 5]
+    tap.write(StepOutput(results=rows(6, 1)))
+    assert tap.take()[0]["n"].tolist() == [6] and not tap.take()[1]
 
 
 # -- a live run in the engine ------------------------------------------------------------------

@@ -16,6 +16,7 @@ import numpy as np
 from bench.config import Config
 from bench.live.runner import LiveRunner
 from bench.live.view import Snapshot
+from bench.pipeline.warmup import PendingEstimator
 from bench.sinks.base import RecordingStatus
 from devices.base import FileSource, LiveSource, SourceBatch
 from protocol.can_codec import encode_adc, encode_speed, encode_status
@@ -168,32 +169,13 @@ class FakeSink:
         return RecordingStatus(path=self.path, frames=self.frames, bytes=1000 + self.frames * 20)
 
 
-class NoEstimator:
-    """Stands in for the bench's estimator where a test must not depend on it (its own tests
-    cover it): every estimate unavailable, no events."""
-
-    def push(
-        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        from bench.records.events import EVENT_DTYPE
-        from bench.records.results import RESULT_DTYPE
-
-        names = ["gradient_signed", "gradient_ls", "u", "w", "a_ref", "residual"]
-        flags = ["degraded", "excluded", "gradient_sigma", "odometer_suspect", "coasting"]
-        dtype = np.dtype([(n, RESULT_DTYPE[n]) for n in [*names, *flags]])
-        out = np.zeros(len(samples), dtype=dtype)
-        for name in [*names, "gradient_sigma"]:
-            out[name] = np.nan
-        return out, np.zeros(0, dtype=EVENT_DTYPE)
-
-
 def settled_snapshot(
     frames: np.ndarray, config: Config | None = None, *, estimator: bool = True
 ) -> Snapshot:
     """Run frames through a real LiveRunner to the end and freeze what depends on the clock."""
     runner = LiveRunner(ListSource(frames, chunk=256), config or Config())
     if not estimator:
-        runner.pipeline.estimator = NoEstimator()  # type: ignore[assignment]
+        runner.pipeline.estimator = PendingEstimator()
     runner.start()
     deadline = time.monotonic() + 10
     while runner.pipeline.seq < len(frames) and time.monotonic() < deadline:

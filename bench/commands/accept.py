@@ -160,6 +160,9 @@ def run(args: argparse.Namespace) -> int:
     )
     check_output_dir(args.out, "acceptance results")
     err.print(f"bench: acceptance plan {plan.name}: {plan.title}", highlight=False)
+    from bench.pipeline.warmup import prepare
+
+    prepare(lambda m: err.print(f"bench: {m}", highlight=False, soft_wrap=True))
     try:
         outcome = run_plan(plan, opts)
     except OSError as exc:  # a full disk or a vanished folder: an error, not a fail verdict

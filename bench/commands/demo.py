@@ -61,6 +61,6 @@ def run(args: argparse.Namespace) -> int:
     plan = EmulatorPlan(
         config=config, args=cli_values(args), log_dir=log_dir, scenario=path, speed=args.speed
     )
+    announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))  # before the screen
     session = start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
-    announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))
-    return show(session)
+    return show(session, notices=[config.announcement()])

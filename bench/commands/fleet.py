@@ -56,6 +56,11 @@ def run(args: argparse.Namespace) -> int:
         name = json.dumps(str(args.config))  # a TOML basic string
         config_toml = f"_path = {name}\n" + load_config(args.config).to_toml()
     console = Console(stderr=True)
+    from bench.pipeline.warmup import prepare
+
+    # compiled here once, the local workers load it from the disk cache instead of each
+    # compiling it on a first start
+    prepare(lambda m: console.print(f"bench: {m}", highlight=False, soft_wrap=True))
     outcome = run_fleet(
         paths,
         args.out,

@@ -211,8 +211,10 @@ def export_results(
             sink.put(results)
         else:
             from bench.mcaplog.source import McapFrameSource
+            from bench.pipeline.warmup import prepare
 
             print(f"bench: {config.announcement()}", file=sys.stderr)
+            prepare(lambda m: print(f"bench: {m}", file=sys.stderr))
             pipe = Pipeline(config)
             source = McapFrameSource(lg.path)
             try:

@@ -108,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
         _close_all(sinks)
         source.close()
         raise
+    from bench.pipeline.warmup import prepare
+
+    prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
     collected = None

@@ -110,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
 
             sinks.append(csv_sink(args.csv, live=True))
         opening.pop_all()  # all open: from here the run's own shutdown closes them
+    from bench.pipeline.warmup import prepare
+
+    prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start: before the run
     runner = LiveRunner(setup.source, config, sinks, description=setup.description)
     runner.recording = recording
     start = time.monotonic()

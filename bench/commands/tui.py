@@ -52,15 +52,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         config = live_config(args.config, args.emulate)
     log_dir = Path(args.mcap).parent if args.mcap else log_folder()
-    session = run_replay(args, config, log_dir) if args.replay else run_live(args, config, log_dir)
     say = lambda m: print(f"bench: {m}", file=sys.stderr)  # noqa: E731
-    announce(config, say)
     hint = replay_hint(config, args.replay) if args.replay else None
+    if args.replay:  # in this process, at once: a log that cannot be read says only that
+        session = run_replay(args, config, log_dir)
+    announce(config, say)  # before the screen covers the terminal; the screen says it too
     if hint:
         say(hint)
+    if not args.replay:  # the engine may take seconds to start: the line is up meanwhile
+        session = run_live(args, config, log_dir)
+    notices = [config.announcement(), *([hint] if hint else [])]
     if args.replay:
-        return show(session, **replay_extras(args, config, log_dir))
-    return show(session)
+        return show(session, notices=notices, **replay_extras(args, config, log_dir))
+    return show(session, notices=notices)
 
 
 def show(session: SessionLike, **app_kwargs: Any) -> int:

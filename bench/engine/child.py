@@ -42,31 +42,49 @@ OUTPUT_TAIL = 8000
 
 class RowTap:
     """A sink keeping the results delivered since the last :meth:`take` (at most ``limit``
-    rows: the screen's history holds no more), so a snapshot sends only what is new."""
+    rows: the screen's history holds no more), so a snapshot sends only what is new.
+
+    While the estimator's kernel is prepared it also takes the runner's previews (rows
+    without the estimator); the first full rows after them replace them: :meth:`take` then
+    says the screen must start its history afresh."""
 
     def __init__(self, limit: int = HISTORY) -> None:
         self._limit = limit
         self._lock = threading.Lock()
         self._parts: list[np.ndarray] = []
         self._rows = 0
+        self._previewing = False
+        self._restart = False
+
+    def preview(self, step: StepOutput) -> None:
+        with self._lock:
+            self._previewing = True
+            self._add(step.results)
 
     def write(self, step: StepOutput) -> None:
-        res = step.results
+        with self._lock:
+            if self._previewing:  # the full rows from the first frame on: previews go
+                self._previewing, self._restart = False, True
+                self._parts, self._rows = [], 0
+            self._add(step.results)
+
+    def _add(self, res: np.ndarray) -> None:
         if not len(res):
             return
-        with self._lock:
-            self._parts.append(res)
-            self._rows += len(res)
-            while self._rows - len(self._parts[0]) >= self._limit:
-                self._rows -= len(self._parts.pop(0))
+        self._parts.append(res)
+        self._rows += len(res)
+        while self._rows - len(self._parts[0]) >= self._limit:
+            self._rows -= len(self._parts.pop(0))
 
-    def take(self) -> np.ndarray:
+    def take(self) -> tuple[np.ndarray, bool]:
+        """The rows new since the last take, and whether they replace all rows before."""
         with self._lock:
             parts, self._parts, self._rows = self._parts, [], 0
+            restart, self._restart = self._restart, False
         if not parts:
-            return np.zeros(0, dtype=RESULT_DTYPE)
+            return np.zeros(0, dtype=RESULT_DTYPE), restart
         rows = concat_records(parts)  # np.concatenate: ~50 us of GIL per part
-        return rows[-self._limit :]
+        return rows[-self._limit :], restart
 
     def mark(self, t: float, text: str) -> None:
         pass
@@ -235,7 +253,9 @@ class _Server:
     def snapshot(self) -> tuple[Any, bool, bool]:
         """The state without results, plus the results new since the last snapshot."""
         snap = self.session.snapshot(last=0)
-        snap.results = self.tap.take()
+        snap.results, restart = self.tap.take()
+        if restart:
+            snap.extra["rows_restart"] = True
         rec = self.session.recorder
         return snap, rec.active, rec.can_start
 

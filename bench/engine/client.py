@@ -284,6 +284,8 @@ class EngineSession:
         """A snapshot's reply, on the reader thread: rows into the ring, state kept."""
         snap, active, can_start = reply
         with self._ring_lock:
+            if snap.extra.pop("rows_restart", False):  # full rows replace the previews
+                self._ring = ResultRing(HISTORY)
             self._ring.extend(snap.results)
             snap.results = snap.results[:0]
             self._last = snap

@@ -4,6 +4,13 @@ The receive path never waits on the UI or the disk: the acquisition thread only 
 source and enqueues (counting what a full queue drops); the processing thread runs the
 pipeline and hands each step to the sinks, which queue their own I/O; the UI copies a
 :class:`Snapshot` at a few Hz.
+
+On a first start the estimator's kernel is still being compiled (bench.pipeline.warmup):
+the runner then holds every batch, runs a preview pipeline on it (the reference method,
+the estimator pending) for the screen only, and once the kernel is ready puts everything
+held through the full pipeline, in order, to the sinks (the MCAP log gets full rows from
+the first frame, tolerance changes and marks where they were made) and replaces the
+screen's rows with the full ones. A live run and the replay of its log stay identical.
 """
 
 from __future__ import annotations
@@ -12,7 +19,7 @@ import contextlib
 import queue
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from typing import Any
 
 import numpy as np
@@ -20,7 +27,8 @@ import numpy as np
 from bench.config import Config
 from bench.live.view import HISTORY, ResultRing, Snapshot
 from bench.pipeline.steps import Pipeline, StepOutput, merge_batches
-from bench.records.events import EventKind, describe, make_events
+from bench.pipeline.warmup import KernelWarmUp, PendingEstimator
+from bench.records.events import EventKind, concat_events, describe, make_events
 from bench.sinks.base import Sink
 from devices.base import LiveSource, SourceBatch
 from devices.cpu_placement import live_cpus, pin_thread
@@ -69,10 +77,20 @@ class LiveRunner:
         description: str = "",
         queue_batches: int = 4096,
         read_timeout: float = 0.05,
+        warm_up: KernelWarmUp | None = None,
     ) -> None:
         self.source = source
         self.config = config
-        self.pipeline = Pipeline(config)
+        # the estimator's kernel still compiling (first start): a preview pipeline until then
+        self._warmup = warm_up if warm_up is not None else KernelWarmUp.if_needed()
+        if self._warmup is None:
+            self.pipeline = Pipeline(config)
+        else:
+            self.pipeline = Pipeline(config, estimator=PendingEstimator())
+        self._held: list[tuple[str, Any]] = []  # batches, tolerance changes, marks, events
+        self._held_frames = 0
+        self._previewed: Counter[tuple[float, int, str]] = Counter()  # events shown already
+        self._catch_up_ring: ResultRing | None = None
         self.description = description or getattr(source, "description", "live source")
         self._sinks: list[Sink] = list(sinks or [])
         self._queue: queue.Queue[SourceBatch | None] = queue.Queue(maxsize=queue_batches)
@@ -133,8 +151,12 @@ class LiveRunner:
             self._sinks.append(sink)
 
     def set_tolerance(self, permil: float) -> None:
-        self.pipeline.tolerance_permil = max(0.0, float(permil))
-        self.mark(f"tolerance set to {self.pipeline.tolerance_permil:g} permil")
+        value = max(0.0, float(permil))
+        with self._lock:
+            self.pipeline.tolerance_permil = value
+            if self._warmup is not None:  # the full pipeline takes it at the same frame
+                self._held.append(("tolerance", value))
+        self.mark(f"tolerance set to {value:g} permil")
 
     def mark(self, text: str = "operator mark") -> None:
         t = time.time()
@@ -142,6 +164,9 @@ class LiveRunner:
         with self._lock:
             self._events.append((t, int(EventKind.MARK), f"MARK {text}"))
             sinks = list(self._sinks)
+            if self._warmup is not None:  # to the sinks after the frames that preceded it
+                self._held.append(("mark", (t, text)))
+                return
         for sink in sinks:
             sink.mark(t, text)
 
@@ -169,7 +194,12 @@ class LiveRunner:
         try:
             end = False
             while not end:
-                batch = self._queue.get()
+                if self._warmup is not None and self._warmup.ready:
+                    self._catch_up()
+                try:  # while the kernel is prepared: look up now and then to catch up
+                    batch = self._queue.get(timeout=0.1 if self._warmup is not None else None)
+                except queue.Empty:
+                    continue
                 if batch is None:
                     break
                 # whatever else is waiting goes into the same step: the pipeline's output does
@@ -184,14 +214,21 @@ class LiveRunner:
                         end = True
                         break
                     parts.append(more)
-                step = self.pipeline.process(merge_batches(parts))
+                merged = merge_batches(parts)
+                step = self.pipeline.process(merged)
+                extra = None
                 if self.frames_dropped != dropped_seen:
                     lost = self.frames_dropped - dropped_seen
                     dropped_seen = self.frames_dropped
-                    step.events = np.concatenate(
-                        [step.events, make_events(EventKind.DROPPED, time.time(), 0, -1, lost)]
-                    )
-                self._deliver(step)
+                    extra = make_events(EventKind.DROPPED, time.time(), 0, -1, lost)
+                    step.events = np.concatenate([step.events, extra])
+                if self._warmup is not None:
+                    self._hold(merged, extra, step)
+                else:
+                    self._deliver(step)
+            if self._warmup is not None:  # the log gets full rows: wait for the kernel
+                self._warmup.wait()
+                self._catch_up()
             self._deliver(self.pipeline.finish())
         except Exception as exc:
             self.error = f"processing stopped: {exc!r}"
@@ -216,6 +253,82 @@ class LiveRunner:
                     self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
             self.finished.set()
 
+    # -- while the estimator's kernel is prepared --------------------------------------------
+    def _hold(self, batch: SourceBatch, extra: np.ndarray | None, preview: StepOutput) -> None:
+        """Keep ``batch`` (and the events the runner added to its step) for the full
+        pipeline; the preview's rows and events go to the screen and to the sinks that
+        take previews (the engine's row tap, a replay's flow control), not to the log."""
+        now = time.time()
+        with self._lock:
+            self._held.append(("batch", batch))
+            if extra is not None:
+                self._held.append(("events", extra))
+            self._held_frames += len(batch.frames)
+            res = preview.results
+            if len(res):
+                self._ring.extend(res)
+                self._latency.extend(now - res["t"])
+            for ev in preview.events[-200:]:
+                row = (float(ev["t"]), int(ev["kind"]), describe(ev))
+                self._events.append(row)
+                self._previewed[row] += 1
+            sinks = list(self._sinks)
+        for sink in sinks:
+            take = getattr(sink, "preview", None)
+            if take is not None:
+                take(preview)
+
+    def _catch_up(self) -> None:
+        """The kernel is ready: everything held through the full pipeline to the sinks, in
+        order, then the full pipeline takes over (and the screen's rows are the full ones)."""
+        warmup = self._warmup
+        assert warmup is not None
+        if warmup.error is not None:  # compile here then, or fail with the reason
+            try:
+                full = Pipeline(self.config)
+            except Exception as exc:
+                raise RuntimeError(f"the estimator could not be prepared: {warmup.error}") from exc
+        else:
+            full = Pipeline(self.config)
+        full.tolerance_permil = self.config.tolerance_permil
+        self._catch_up_ring = ResultRing(HISTORY)
+        while True:
+            with self._lock:
+                held, self._held = self._held, []
+                if not held:  # nothing came in meanwhile: the full pipeline takes over
+                    full.tolerance_permil = self.pipeline.tolerance_permil
+                    self.pipeline = full
+                    self._ring, self._catch_up_ring = self._catch_up_ring, None
+                    self._warmup = None
+                    self._previewed.clear()
+                    return
+                sinks = list(self._sinks)
+            self._replay_held(full, held, sinks)
+
+    def _replay_held(self, full: Pipeline, held: list[tuple[str, Any]], sinks: list[Sink]) -> None:
+        segment: list[SourceBatch] = []
+
+        def flush(extra: np.ndarray | None = None) -> None:
+            if not segment and extra is None:
+                return
+            step = full.process(merge_batches(segment)) if segment else StepOutput()
+            segment.clear()
+            if extra is not None:
+                step.events = concat_events([step.events, extra])
+            self._deliver(step)
+
+        for kind, item in held:
+            if kind == "batch":
+                segment.append(item)
+                continue
+            flush(item if kind == "events" else None)
+            if kind == "tolerance":
+                full.tolerance_permil = item
+            elif kind == "mark":
+                for sink in sinks:
+                    sink.mark(*item)
+        flush()
+
     def _deliver(self, step: StepOutput) -> None:
         now = time.time()
         with self._lock:
@@ -236,11 +349,26 @@ class LiveRunner:
                 self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
         res = step.results
         with self._lock:
+            catching_up = self._catch_up_ring is not None
+            if catching_up:  # rows the screen saw as previews: not live, no latency
+                if len(res):
+                    self._catch_up_ring.extend(res)
+                rows = [(float(ev["t"]), int(ev["kind"]), describe(ev)) for ev in step.events]
+                fresh = [r for r in rows if not self._take_previewed(r)]
+                self._events.extend(fresh[-200:])  # the estimator's, which the preview lacked
+                return
             if len(res):
                 self._ring.extend(res)
                 self._latency.extend(now - res["t"])
             for ev in step.events[-200:]:
                 self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
+
+    def _take_previewed(self, row: tuple[float, int, str]) -> bool:
+        """True (and counted off) when the preview showed this event already."""
+        if self._previewed[row] <= 0:
+            return False
+        self._previewed[row] -= 1
+        return True
 
     def _output_failed(self, sink: Sink, text: str, errno: int) -> None:
         """A secondary output failed: a loud event, a line for the status and the exit code;
@@ -259,6 +387,7 @@ class LiveRunner:
             stats = self.pipeline.stats.copy()
             events = list(self._events)
             lat = self._latency.values()
+            warmup = self._warmup.status(self._held_frames) if self._warmup is not None else None
         rec = None
         if self.recording is not None:
             rec = getattr(self.recording, "status", lambda: None)()
@@ -282,4 +411,5 @@ class LiveRunner:
             error=self.error,
             marks=self.marks,
             output_errors=list(self.output_errors),
+            warmup=warmup,
         )

@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from bench.pipeline.stats import Stats
+from bench.pipeline.warmup import WarmUpStatus
 from bench.records.results import RESULT_DTYPE
 from bench.sinks.base import RecordingStatus
 
@@ -75,6 +76,7 @@ class Snapshot:
     marks: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
     output_errors: list[str] = field(default_factory=list)  # failed secondary outputs (CSV)
+    warmup: WarmUpStatus | None = None  # the estimator's kernel still being prepared
 
 
 class RecorderControl(Protocol):

@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -137,11 +137,34 @@ def merge_steps(steps: Sequence[StepOutput]) -> StepOutput:
     return StepOutput(**arrays, seq0=steps[0].seq0, batch=batch)
 
 
+class EstimatorLike(Protocol):
+    """What the pipeline asks of the estimator (bench.fusion.estimator.Estimator; the
+    preview pipeline's stand-in while its kernel is prepared, bench.pipeline.warmup)."""
+
+    def push(
+        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def buffer_speeds(self, speeds: np.ndarray) -> None: ...
+
+    def push_rows(
+        self,
+        ticks_l: list[int],
+        t_l: list[float],
+        seq_l: list[int],
+        n_l: list[int],
+        code_l: list[list[int]],
+        present_l: list[list[bool]],
+        acc_l: list[list[float]],
+        usable_l: list[list[bool]],
+    ) -> tuple[list[tuple], list[tuple]]: ...
+
+
 class Pipeline:
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, *, estimator: EstimatorLike | None = None) -> None:
         self.config = config
         self.assembler = Assembler(config.sample_rate_hz)
-        self.estimator = Estimator(config)
+        self.estimator: EstimatorLike = estimator if estimator is not None else Estimator(config)
         self.stats = Stats()
         self.seq = 0  # frames seen so far (arrival index of the next one)
         self.first_ticks: int | None = None

@@ -424,12 +424,16 @@ class ReplayTap:
         self.source = source
         self.dropped = 0  # frames the runner dropped: handed out, never processed
         self.batches = 0
+        self._fused_to = 0  # frames counted so far (the runner's catch-up repeats previews)
 
     def write(self, step: StepOutput) -> None:
         source = self.source
+        end = step.seq0 + len(step.frames)
+        fresh = end > self._fused_to or not len(step.frames)  # not a catch-up of previews
         if len(step.events):
             kinds = step.events["kind"]
-            self.dropped += int(step.events["value"][kinds == EventKind.DROPPED].sum())
+            if fresh:
+                self.dropped += int(step.events["value"][kinds == EventKind.DROPPED].sum())
             if source.seeking and source.seek_kinds:
                 hits = step.events[np.isin(kinds, list(source.seek_kinds))]
                 if len(hits):
@@ -443,9 +447,15 @@ class ReplayTap:
                 k = int(due[0])
                 n = int(step.results["n"][k])
                 source.failure_found(Failure(float(t[k]), n, f"sample {n}"))
-        if step.batch is not None:
+        if step.batch is not None and fresh:
+            self._fused_to = end
             self.batches += 1
             self.source.consumed_to(step.seq0 + len(step.frames) + self.dropped, self.batches)
+
+    def preview(self, step: StepOutput) -> None:
+        """While the estimator's kernel is prepared the runner previews its steps: they
+        move the replay on as much as the full ones (bench.live.runner)."""
+        self.write(step)
 
     def mark(self, t: float, text: str) -> None:
         pass

@@ -15,7 +15,7 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import ClassVar
 
@@ -120,8 +120,10 @@ class BenchApp(App[int]):
         poll_hz: float = 4.0,
         window_s: float = 10.0,
         handle_signals: bool = False,
+        notices: Sequence[str] = (),
     ) -> None:
         super().__init__()
+        self.notices = list(notices)  # shown when the screen comes up (the calibration)
         self.handle_signals = handle_signals
         self.hung_up = False
         self.session = session
@@ -170,6 +172,8 @@ class BenchApp(App[int]):
                     widget.set_clock("log time, UTC")
         self.on_resize()
         self._update_status_bar()
+        for line in self.notices:
+            self.notify(line, timeout=20)
         if self.poll_hz > 0:
             self.set_interval(1.0 / self.poll_hz, self.poll)
             self.poll()
@@ -278,14 +282,19 @@ class BenchApp(App[int]):
             return
         row = self._row(snap)
         self.query_one(PairsPanel).show(
-            row, snap.tolerance_permil, cursor=self.cursor_n is not None, rows=snap.results
+            row,
+            snap.tolerance_permil,
+            cursor=self.cursor_n is not None,
+            rows=snap.results,
+            preparing=snap.warmup,
         )
         self.query_one(ChannelsPanel).show(row, snap.stats, rates)
         self.query_one(GradientPlot).show(plot, plot_size(plot) if plot is not None else None)
         self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
         extra = snap.extra
+        held = snap.warmup.held_frames if snap.warmup is not None else None
         self.query_one(RecordingPanel).show(
-            snap.recording, extra.get("last_recording"), extra.get("foxglove")
+            snap.recording, extra.get("last_recording"), extra.get("foxglove"), held
         )
         self.query_one(EventsPanel).show(snap.events)
         self.snapshots_applied += 1
@@ -348,6 +357,8 @@ class BenchApp(App[int]):
             text.append(f"  {s.source}")
             if len(s.results):
                 text.append(f"  t {float(s.results['time_s'][-1]):.1f} s")
+            if s.warmup is not None:
+                text.append(f"  {s.warmup.spinner()} estimator {s.warmup.elapsed_s:.0f} s")
             if s.extra.get("emulator_done"):
                 text.append("  scenario finished", style="yellow")
             if not s.running:
@@ -361,7 +372,8 @@ class BenchApp(App[int]):
         if self.display_paused:
             text.append("  display paused: acquisition and log continue", style="yellow")
         if self.quitting:
-            text.append("  finishing the log…", style="bold yellow")
+            wait = " once the estimator is ready" if s is not None and s.warmup else ""
+            text.append(f"  finishing the log{wait}…", style="bold yellow")
         self.query_one("#status-bar", Static).update(text, layout=False)
         self.title = f"{self.TITLE} PAUSED" if self.display_paused else self.TITLE
 

@@ -17,6 +17,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Digits, Static
 
+from bench.pipeline.warmup import WarmUpStatus
 from bench.records.results import VOTE_SLOPES
 from bench.tui.panels import MISSING, grade_state, num
 
@@ -138,6 +139,13 @@ def ours_detail(row: np.void | None, window: tuple[float, float, float] | None =
     return text
 
 
+def preparing_detail(status: WarmUpStatus) -> Text:
+    """The estimator's two lines while its kernel is prepared: how long so far, and why."""
+    text = Text(status.headline(), style="bold yellow")
+    text.append("\n" + status.detail(), style="bold red" if status.error else "dim")
+    return text
+
+
 class PairsPanel(Vertical):
     """The per-pair values of one result row (the newest, or the one the replay cursor is on)."""
 
@@ -161,8 +169,10 @@ class PairsPanel(Vertical):
         *,
         cursor: bool = False,
         rows: np.ndarray | None = None,
+        preparing: WarmUpStatus | None = None,
     ) -> None:
-        """Show ``row``; ``rows`` (recent results) feed the windowed mean, min and max."""
+        """Show ``row``; ``rows`` (recent results) feed the windowed mean, min and max;
+        ``preparing``: the estimator's kernel is still being prepared (its figures pending)."""
         state = grade_state(row)
         where = "at cursor" if cursor else "latest"
         if row is not None:
@@ -181,14 +191,15 @@ class PairsPanel(Vertical):
         label.update(Text(f"‰\n{STATE_LABEL[state]}\n{passed}/3 votes"), layout=False)
         for s in ("valid", "degraded", "invalid", "none"):
             label.set_class(s == state, s)
-        ours, kind = ours_text(row)
+        ours, kind = ours_text(row) if preparing is None else (" --.--", "preparing")
         ours_w = self.query_one("#ours", Digits)
         ours_w.update(ours)
-        ours_w.set_class(kind == "n/a" or kind.startswith("withheld"), "none")
+        ours_w.set_class(kind in ("n/a", "preparing") or kind.startswith("withheld"), "none")
         ours_w.set_class(row is not None and bool(row["degraded"]), "degraded")
         self.query_one("#ours-label", Static).update(f"‰ ours\n{kind}", layout=False)
-        window = ours_window(rows, row)
-        self.query_one("#ours-detail", Static).update(ours_detail(row, window), layout=False)
+        window = ours_window(rows, row) if preparing is None else None
+        detail = ours_detail(row, window) if preparing is None else preparing_detail(preparing)
+        self.query_one("#ours-detail", Static).update(detail, layout=False)
         self.values = {"final": final_text(row).strip(), "state": state, "ours": ours.strip()}
         self.values["ours_kind"] = kind
         if window is not None:

@@ -16,12 +16,13 @@ def recording_table(
     last: RecordingStatus | None,
     stream: str | None = None,
     width: int | None = None,
+    held: int | None = None,
 ) -> Table:
-    """Two lines while recording (three when the log failed): state, duration and figures;
-    the file, cut at its start to ``width`` (the name is what tells files apart), so the
-    Marks list below keeps its rows at 100x30. ``stream``: the live Foxglove stream's
-    address (``--foxglove``; a port chosen at start is shown nowhere else once the screen
-    is up), on the first row."""
+    """Two lines while recording (three when the log failed, or while ``held`` frames wait
+    for the estimator's kernel): state, duration and figures; the file, cut at its start to
+    ``width`` (the name is what tells files apart), so the Marks list below keeps its rows
+    at 100x30. ``stream``: the live Foxglove stream's address (``--foxglove``; a port chosen
+    at start is shown nowhere else once the screen is up), on the first row."""
     table = Table(box=None, pad_edge=False, padding=0, show_header=False, show_edge=False)
     table.add_column(no_wrap=True, overflow="ellipsis", ratio=1)
     if stream:
@@ -48,6 +49,8 @@ def recording_table(
     if status.error:  # before the path, where a short panel cannot crop it away
         reason = status.error.removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
+    if held is not None:
+        table.add_row(Text(f"{held} frames held for the estimator", style="yellow"))
     table.add_row(_path(status.path, width))
     return table
 
@@ -83,8 +86,10 @@ class RecordingPanel(Static):
         status: RecordingStatus | None,
         last: RecordingStatus | None = None,
         stream: str | None = None,
+        held: int | None = None,
     ) -> None:
-        table = recording_table(status, last, stream, self.content_size.width or None)
+        """``held``: frames waiting for the estimator's kernel, logged once it is ready."""
+        table = recording_table(status, last, stream, self.content_size.width or None, held)
         self.update(table, layout=table.row_count != self._rows)
         self._rows = table.row_count
         self.set_class(status is not None, "recording")
