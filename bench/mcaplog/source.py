@@ -80,6 +80,11 @@ class McapFrameSource(FileSource):
     def size_bytes(self) -> int:
         return self.log.size
 
+    def frame_count(self) -> int:
+        """The frames the file holds (its message index: no decompression), for a replay's
+        progress."""
+        return int(self.log.message_counts().get(S.FRAME_TOPIC, 0))
+
     def position(self) -> int:
         return self._position
 

@@ -27,11 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from bench.records.events import EVENT_DTYPE
-from bench.records.results import RESULT_DTYPE
-
-UNIX_TIME_FROM = 946_684_800.0
-"""Receive times at or after 2000-01-01T00:00:00Z are Unix time (a wall clock stamped the
-frame); smaller ones are relative to the start of a recording."""
+from bench.records.results import RESULT_DTYPE, UNIX_TIME_FROM
 
 UTC_COLUMN = "utc"
 

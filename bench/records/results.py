@@ -35,6 +35,10 @@ RESULT_DTYPE = np.dtype(
     ]
 )
 
+UNIX_TIME_FROM = 946_684_800.0
+"""Receive times ``t`` at or after 2000-01-01T00:00:00Z are Unix time (a wall clock stamped
+the frame); smaller ones are relative to the start of a recording (an emulator's run time)."""
+
 VOTE_SLOPES = ((0, 1), (1, 2), (0, 2))
 """The two ``slopes`` columns each of ``votes`` v1, v2, v3 compares (g12~g23, g23~g13,
 g12~g13): how a screen labels a vote without importing fusion (bench.fusion.reference)."""

@@ -36,6 +36,11 @@ SPEEDS: tuple[float | None, ...] = (1.0, 10.0, None)
 MAX_IDLE_GAP_S = 2.0
 """A pause in the log longer than this is skipped when pacing (a log may hold hours of idle)."""
 
+SEEK_AHEAD_S = 0.5
+"""A seek runs at most this much log time ahead of what fusion has taken: it stops that close
+past the event it looks for (the plot still shows it), in steps large enough for the
+pipeline's fast path. A seek to a time hands out everything before it in full batches."""
+
 
 def speed_label(speed: float | None) -> str:
     return "max" if speed is None else f"{speed:g}x"
@@ -96,10 +101,26 @@ class ReplayStatus:
     size: int  # file size in bytes (0 when unknown)
     failure: Failure | None = None
     notes: list[str] = field(default_factory=list)
+    frames_total: float = math.nan  # frames in the log (estimated from bytes when not told)
+    seek_until: float = math.nan  # log time a seek runs to (NaN: none, or to an event)
 
     @property
     def fraction(self) -> float:
+        """How far fusion has got through the log: by frames, which move with every step
+        (a file's position moves by whole chunks: a chunk of an MCAP log can be 30 s)."""
+        if self.finished and self.consumed >= self.emitted:
+            return 1.0
+        if math.isfinite(self.frames_total) and self.frames_total > 0:
+            return min(1.0, self.consumed / self.frames_total)
         return self.position / self.size if self.size else math.nan
+
+    @property
+    def seek_fraction(self) -> float:
+        """How far a seek to a log time has got (NaN when the seek is not to a time)."""
+        span = self.seek_until - self.log_t0
+        if not (self.seeking and math.isfinite(span) and span > 0 and math.isfinite(self.log_t)):
+            return math.nan
+        return min(1.0, max(0.0, (self.log_t - self.log_t0) / span))
 
 
 class ReplaySource(LiveSource):
@@ -122,6 +143,8 @@ class ReplaySource(LiveSource):
         self.log = log
         self.description = description or f"replay {getattr(log, 'description', 'log')}"
         self._batches: Iterator[SourceBatch] = iter(log.batches(batch_frames))
+        self._frames_told = _frames_in(log)  # the log says how many frames it holds
+        self._frames_read = 0  # frames taken from the log so far
         self._clock = clock
         self._cond = threading.Condition()
         self._speed = speed
@@ -263,7 +286,20 @@ class ReplaySource(LiveSource):
                 size=_safe(self.log.size_bytes),
                 failure=self.failure,
                 notes=list(self._notes),
+                frames_total=self._frames_total(),
+                seek_until=self._seek_until if self._seeking else math.nan,
             )
+
+    def _frames_total(self) -> float:
+        """The log's frames: as it says, else from the frames read per byte so far."""
+        if self._frames_told:
+            return float(self._frames_told)
+        if self._exhausted:
+            return float(self._frames_read)
+        position, size = _safe(self.log.position), _safe(self.log.size_bytes)
+        if position <= 0 or size <= 0 or not self._frames_read:
+            return math.nan
+        return self._frames_read * size / position
 
     # -- feedback (processing thread, via ReplayTap) --------------------------------------
     def consumed_to(self, frames: int, batches: int) -> None:
@@ -326,6 +362,7 @@ class ReplaySource(LiveSource):
                 self._exhausted = True
             else:
                 self._pending, self._pos, self._extras_sent = batch, 0, False
+                self._frames_read += len(batch.frames)
                 if not math.isfinite(self._log_t0) and len(batch.frames):
                     finite = batch.frames["t"][np.isfinite(batch.frames["t"])]
                     if len(finite):
@@ -349,7 +386,7 @@ class ReplaySource(LiveSource):
         if len(frames) == 0:
             k = 0
         elif self._seeking:
-            k = min(len(frames), max(0, self.seek_chunk - ahead))
+            k = self._seek_take(frames, ahead)
         elif self._paused:
             k = self._due(frames, self._step_target) if math.isfinite(self._step_target) else 0
             k = min(k, max(0, self.max_ahead - ahead))
@@ -381,6 +418,19 @@ class ReplaySource(LiveSource):
             self._pending = None
         return batch, wait
 
+    def _seek_take(self, frames: np.ndarray, ahead: int) -> int:
+        """Frames a seek hands out now: up to :data:`SEEK_AHEAD_S` of log time past what
+        fusion has taken (at least ``seek_chunk`` frames), and when it seeks a time, every
+        frame that far before it, in full batches."""
+        span = self._log_t - self._log_t0
+        per_s = self.emitted / span if span > 0.1 else 0.0  # the log's frame rate so far
+        limit = max(self.seek_chunk, int(per_s * SEEK_AHEAD_S))
+        k = min(len(frames), max(0, limit - ahead))
+        if math.isfinite(self._seek_until):
+            before = self._due(frames, self._seek_until - SEEK_AHEAD_S)
+            k = max(k, min(before, max(0, self.max_ahead - ahead)))
+        return k
+
     def _paced_target(self, frames: np.ndarray) -> float:
         """The log time that is due now at the current speed."""
         now = self._clock()
@@ -407,6 +457,15 @@ class ReplaySource(LiveSource):
         if due.all():
             return len(frames)
         return int(np.argmin(due))
+
+
+def _frames_in(log: FileSource) -> int:
+    """Frames the log says it holds (an MCAP log's summary), 0 when it does not say."""
+    count = getattr(log, "frame_count", None)
+    try:
+        return int(count()) if callable(count) else 0
+    except Exception:
+        return 0
 
 
 def _safe(fn: Callable[[], int]) -> int:

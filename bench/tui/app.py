@@ -31,6 +31,7 @@ from textual.widgets import Footer, Static
 
 from bench.errors import BenchError
 from bench.live.view import HISTORY, SessionLike, Snapshot
+from bench.records.results import UNIX_TIME_FROM
 from bench.replay.player import ReplayStatus, speed_label
 from bench.tui.help import HelpScreen
 from bench.tui.messages import SessionStopped, SnapshotReady
@@ -167,9 +168,7 @@ class BenchApp(App[int]):
         self.query_one("#plot").border_title = self._plot_title()
         self.query_one("#plot").border_subtitle = "w: window"
         if self.session.mode == "replay":
-            for table in self.query(EventsPanel), self.query(MarksPanel):
-                for widget in table:
-                    widget.set_clock("log time, UTC")
+            self._set_clock("log time")  # UTC or run time once the first frames say which
         self.on_resize()
         self._update_status_bar()
         for line in self.notices:
@@ -320,8 +319,16 @@ class BenchApp(App[int]):
                 return res[int(hit[0])]
         return res[-1]
 
+    def _set_clock(self, clock: str) -> None:
+        for table in self.query(EventsPanel), self.query(MarksPanel):
+            for widget in table:
+                widget.set_clock(clock)
+
     def _follow_replay(self, snap: Snapshot) -> None:
         rs: ReplayStatus | None = snap.extra.get("replay")
+        if rs is not None and math.isfinite(rs.log_t0):
+            # an emulator's log counts from its start: its times are run time, not UTC
+            self._set_clock("log time, UTC" if rs.log_t0 >= UNIX_TIME_FROM else "run time")
         if rs is None or rs.failure is None or rs.failure is self._failure_seen:
             return
         self._failure_seen = rs.failure
@@ -339,6 +346,8 @@ class BenchApp(App[int]):
             if rs is not None:
                 if rs.seeking:
                     state = f"⏩ seeking {self.seek_label}"
+                    if math.isfinite(rs.seek_fraction):
+                        state += f" {100 * rs.seek_fraction:.0f}%"
                 elif rs.finished and rs.consumed >= rs.emitted:
                     state = "■ end of log"
                 else:

@@ -7,7 +7,8 @@ that row instead: "STATUS_FLAG ch2 status SELFTEST ×200 #300-499" (samples 300 
 the row's time is that of its latest occurrence. Operator marks go to a list of their own
 (:class:`MarksPanel`) so that a stream of vote failures cannot scroll them away. The list can
 be narrowed to one kind of event (:meth:`EventsPanel.cycle_filter`, key ``f``).
-Times are receive times in UTC, or the log's own times in a replay, as in the MCAP file.
+Times are receive times in UTC, or the log's own times in a replay, as in the MCAP file: UTC
+where a wall clock stamped them, else the log's run time (an emulator's log starts at 0).
 """
 
 from __future__ import annotations
@@ -133,7 +134,8 @@ class _EventTable(DataTable):
         self.add_column("event", key="event", width=EVENT_WIDTH)
 
     def set_clock(self, clock: str) -> None:
-        """What the time column is: "UTC" (receive time) or "log time, UTC" (a replay)."""
+        """What the time column is: "UTC" (receive time), "log time, UTC" (a replay of a
+        log stamped by a wall clock) or "run time" (a log with its own time base)."""
         if clock != self.clock:
             self.clock = clock
             self._title()
