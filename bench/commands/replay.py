@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         from bench.acceptance.runner import Collector
 
         collected = Collector()
-        sinks.append(collected)
+    feed: list[Any] = [*sinks, collected] if collected is not None else list(sinks)
     try:
         if show:
             columns = (
@@ -133,12 +133,12 @@ def run(args: argparse.Namespace) -> int:
                 outcome = replay(
                     source,
                     config,
-                    sinks,
+                    feed,
                     collect=False,
                     on_progress=lambda pos: progress.update(task, completed=pos),
                 )
         else:
-            outcome = replay(source, config, sinks, collect=False)
+            outcome = replay(source, config, feed, collect=False)
     except BaseException:
         _close_all(sinks)  # the first failure is the one to tell
         raise

@@ -349,10 +349,10 @@ class LiveRunner:
                 self._output_failed(sink, str(error), int(getattr(sink, "errno", 0) or 0))
         res = step.results
         with self._lock:
-            catching_up = self._catch_up_ring is not None
-            if catching_up:  # rows the screen saw as previews: not live, no latency
+            ring = self._catch_up_ring
+            if ring is not None:  # rows the screen saw as previews: not live, no latency
                 if len(res):
-                    self._catch_up_ring.extend(res)
+                    ring.extend(res)
                 rows = [(float(ev["t"]), int(ev["kind"]), describe(ev)) for ev in step.events]
                 fresh = [r for r in rows if not self._take_previewed(r)]
                 self._events.extend(fresh[-200:])  # the estimator's, which the preview lacked

@@ -157,7 +157,7 @@ class EstimatorLike(Protocol):
         present_l: list[list[bool]],
         acc_l: list[list[float]],
         usable_l: list[list[bool]],
-    ) -> tuple[list[tuple], list[tuple]]: ...
+    ) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]: ...
 
 
 class Pipeline:

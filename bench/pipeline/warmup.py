@@ -19,6 +19,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -158,5 +159,5 @@ class PendingEstimator:
         present_l: list[list[bool]],
         acc_l: list[list[float]],
         usable_l: list[list[bool]],
-    ) -> tuple[list[tuple], list[tuple]]:
+    ) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
         return [self._tuple] * len(ticks_l), []
