@@ -9,11 +9,13 @@ stands in for numba here, so these tests control when it is "ready".
 
 from __future__ import annotations
 
+import io
 import threading
 import time
 from collections.abc import Callable
 
 import numpy as np
+from rich.console import Console
 
 from bench.config import Config
 from bench.live.runner import LiveRunner
@@ -21,7 +23,9 @@ from bench.live.session import Session
 from bench.pipeline.steps import Pipeline, StepOutput
 from bench.pipeline.warmup import KernelWarmUp, WarmUpStatus
 from bench.records.events import EventKind, concat_events
+from bench.sinks.base import RecordingStatus
 from bench.tui.app import BenchApp
+from bench.tui.panels.recording import recording_table
 from devices.base import SourceBatch
 from protocol.layout import STATUS_SELFTEST
 from tests.test_tui_support import ListSource, make_frames, screen_text, settled_snapshot
@@ -145,6 +149,51 @@ def test_quitting_while_the_kernel_is_prepared_still_logs_every_frame() -> None:
     runner.stop()
     assert sum(len(s.frames) for s in sink.steps) == len(frames)
     assert np.isfinite(sink.results()["gradient_signed"]).any()
+
+
+def test_the_hold_is_bounded_and_what_it_cannot_keep_is_counted_and_logged_as_dropped() -> None:
+    """A kernel that takes too long must cost the log counted frames, not the machine's
+    memory: beyond the bound the frames are dropped (the screen's preview still sees
+    them), the run's drop counter and one DROPPED event say how many."""
+    frames = stream()
+    split = int(np.flatnonzero(frames["t"] > frames["t"][0] + 1.75)[0])
+    bound = split // 3
+    gate = threading.Event()
+    warm = KernelWarmUp(work=gate.wait).start()
+    sink = Recorder()
+    runner = LiveRunner(
+        ListSource(frames[:split], chunk=32), Config(), [sink], warm_up=warm, hold_max_frames=bound
+    )
+    runner.start()
+    status = lambda: runner.snapshot(last=0).warmup  # noqa: E731
+    try:
+        wait_until(
+            lambda: (w := status()) is not None and w.held_frames + w.dropped_frames == split
+        )
+        w = status()
+        assert w is not None and w.dropped_frames > 0 and w.held_frames <= bound
+        assert runner.frames_dropped == w.dropped_frames
+        assert len(runner.snapshot().results) > 300  # the preview went on past the bound
+        assert sink.steps == []
+        gate.set()
+        wait_until(lambda: runner.snapshot(last=1).warmup is None)
+    finally:
+        gate.set()
+        runner.stop()
+    assert sum(len(s.frames) for s in sink.steps) == w.held_frames  # what was kept, all of it
+    ev = sink.events()
+    dropped = ev[ev["kind"] == EventKind.DROPPED]
+    assert len(dropped) == 1 and int(dropped["value"][0]) == split - w.held_frames
+    assert runner.frames_dropped == split - w.held_frames
+
+
+def test_the_recording_panel_shows_the_hold_and_its_drops() -> None:
+    status = RecordingStatus(path="logs/run.mcap", frames=0, bytes=1000, duration_s=3.0)
+    out = io.StringIO()
+    table = recording_table(status, None, None, 60, WarmUpStatus(12.0, 4242, 17))
+    Console(file=out, width=60).print(table)
+    text = out.getvalue()
+    assert "4242 frames held for the estimator  drop 17" in text
 
 
 def test_the_screen_says_the_estimator_is_being_prepared() -> None:

@@ -34,6 +34,11 @@ from devices.base import LiveSource, SourceBatch
 from devices.cpu_placement import live_cpus, pin_thread
 
 MAX_COALESCE = 512
+HOLD_MAX_FRAMES = 1_000_000
+"""Frames held at most while the estimator's kernel is prepared (about 40 MB; two minutes of
+a fully loaded 1 Mbit/s bus, five times the slowest first start seen): a compile that takes
+longer, or hangs, costs the log the frames beyond it (counted as ``drop``, a DROPPED event)
+instead of the machine its memory."""
 """Queued source batches merged into one pipeline step at most."""
 
 
@@ -78,6 +83,7 @@ class LiveRunner:
         queue_batches: int = 4096,
         read_timeout: float = 0.05,
         warm_up: KernelWarmUp | None = None,
+        hold_max_frames: int = HOLD_MAX_FRAMES,
     ) -> None:
         self.source = source
         self.config = config
@@ -89,6 +95,9 @@ class LiveRunner:
             self.pipeline = Pipeline(config, estimator=PendingEstimator())
         self._held: list[tuple[str, Any]] = []  # batches, tolerance changes, marks, events
         self._held_frames = 0
+        self._hold_max = hold_max_frames
+        self._hold_dropped = 0  # frames the full hold could not keep (processing thread)
+        self._hold_drop_event: np.ndarray | None = None  # their DROPPED event, held
         self._previewed: Counter[tuple[float, int, str]] = Counter()  # events shown already
         self._catch_up_ring: ResultRing | None = None
         self.description = description or getattr(source, "description", "live source")
@@ -101,7 +110,7 @@ class LiveRunner:
         self._events: deque[tuple[float, int, str]] = deque(maxlen=500)
         self._latency = LatencyRing(5000)
         self.frames_received = 0
-        self.frames_dropped = 0
+        self._queue_dropped = 0  # frames a full queue dropped (acquisition thread)
         self.marks = 0
         self.error: str | None = None
         self.output_errors: list[str] = []  # one line per failed secondary output
@@ -182,7 +191,7 @@ class LiveRunner:
                 try:
                     self._queue.put_nowait(batch)
                 except queue.Full:
-                    self.frames_dropped += len(batch.frames)
+                    self._queue_dropped += len(batch.frames)
         except Exception as exc:  # a source must not raise, but the run must survive one that does
             self.error = f"acquisition stopped: {exc!r}"
         finally:
@@ -217,9 +226,10 @@ class LiveRunner:
                 merged = merge_batches(parts)
                 step = self.pipeline.process(merged)
                 extra = None
-                if self.frames_dropped != dropped_seen:
-                    lost = self.frames_dropped - dropped_seen
-                    dropped_seen = self.frames_dropped
+                if self._queue_dropped != dropped_seen:
+                    queue_dropped = self._queue_dropped
+                    lost = queue_dropped - dropped_seen
+                    dropped_seen = queue_dropped
                     extra = make_events(EventKind.DROPPED, time.time(), 0, -1, lost)
                     step.events = np.concatenate([step.events, extra])
                 if self._warmup is not None:
@@ -259,11 +269,20 @@ class LiveRunner:
         pipeline; the preview's rows and events go to the screen and to the sinks that
         take previews (the engine's row tap, a replay's flow control), not to the log."""
         now = time.time()
+        n = len(batch.frames)
         with self._lock:
-            self._held.append(("batch", batch))
+            if self._held_frames + n <= self._hold_max:
+                self._held.append(("batch", batch))
+                self._held_frames += n
+            else:  # the hold is full: counted, one DROPPED event for the whole streak
+                self._hold_dropped += n
+                if self._hold_drop_event is None:
+                    self._hold_drop_event = make_events(EventKind.DROPPED, now, 0, -1, n)
+                    self._held.append(("events", self._hold_drop_event))
+                else:  # still in the hold, not yet delivered: its count grows
+                    self._hold_drop_event["value"] += n
             if extra is not None:
                 self._held.append(("events", extra))
-            self._held_frames += len(batch.frames)
             res = preview.results
             if len(res):
                 self._ring.extend(res)
@@ -295,6 +314,7 @@ class LiveRunner:
         while True:
             with self._lock:
                 held, self._held = self._held, []
+                self._hold_drop_event = None
                 if not held:  # nothing came in meanwhile: the full pipeline takes over
                     full.tolerance_permil = self.pipeline.tolerance_permil
                     self.pipeline = full
@@ -363,6 +383,12 @@ class LiveRunner:
             for ev in step.events[-200:]:
                 self._events.append((float(ev["t"]), int(ev["kind"]), describe(ev)))
 
+    @property
+    def frames_dropped(self) -> int:
+        """Frames received and never processed for the log: by a full queue, or beyond
+        :data:`HOLD_MAX_FRAMES` while the estimator's kernel was prepared."""
+        return self._queue_dropped + self._hold_dropped
+
     def _take_previewed(self, row: tuple[float, int, str]) -> bool:
         """True (and counted off) when the preview showed this event already."""
         if self._previewed[row] <= 0:
@@ -387,7 +413,11 @@ class LiveRunner:
             stats = self.pipeline.stats.copy()
             events = list(self._events)
             lat = self._latency.values()
-            warmup = self._warmup.status(self._held_frames) if self._warmup is not None else None
+            warmup = (
+                self._warmup.status(self._held_frames, self._hold_dropped)
+                if self._warmup is not None
+                else None
+            )
         rec = None
         if self.recording is not None:
             rec = getattr(self.recording, "status", lambda: None)()

@@ -40,6 +40,7 @@ class WarmUpStatus:
 
     elapsed_s: float
     held_frames: int  # frames received meanwhile, waiting for the full pipeline
+    dropped_frames: int = 0  # received beyond the hold's bound: never logged (counted)
     error: str | None = None
 
     def spinner(self) -> str:
@@ -122,8 +123,8 @@ class KernelWarmUp:
     def wait(self, timeout: float | None = None) -> bool:
         return self._done.wait(timeout)
 
-    def status(self, held_frames: int = 0) -> WarmUpStatus:
-        return WarmUpStatus(self._clock() - self.started, held_frames, self.error)
+    def status(self, held_frames: int = 0, dropped_frames: int = 0) -> WarmUpStatus:
+        return WarmUpStatus(self._clock() - self.started, held_frames, dropped_frames, self.error)
 
 
 class PendingEstimator:

@@ -291,9 +291,8 @@ class BenchApp(App[int]):
         self.query_one(GradientPlot).show(plot, plot_size(plot) if plot is not None else None)
         self.query_one(BoardPanel).show(snap, live=self.session.mode == "live")
         extra = snap.extra
-        held = snap.warmup.held_frames if snap.warmup is not None else None
         self.query_one(RecordingPanel).show(
-            snap.recording, extra.get("last_recording"), extra.get("foxglove"), held
+            snap.recording, extra.get("last_recording"), extra.get("foxglove"), snap.warmup
         )
         self.query_one(EventsPanel).show(snap.events)
         self.snapshots_applied += 1

@@ -7,6 +7,7 @@ from rich.table import Table
 from rich.text import Text
 from textual.widgets import Static
 
+from bench.pipeline.warmup import WarmUpStatus
 from bench.sinks.base import RecordingStatus
 from bench.tui.panels import MISSING, duration_text, size_text
 
@@ -16,7 +17,7 @@ def recording_table(
     last: RecordingStatus | None,
     stream: str | None = None,
     width: int | None = None,
-    held: int | None = None,
+    held: WarmUpStatus | None = None,
 ) -> Table:
     """Two lines while recording (three when the log failed, or while ``held`` frames wait
     for the estimator's kernel): state, duration and figures; the file, cut at its start to
@@ -50,7 +51,10 @@ def recording_table(
         reason = status.error.removeprefix(f"{path}: ")
         table.add_row(Text(f"LOG FAILED: {reason}", style="bold red"))
     if held is not None:
-        table.add_row(Text(f"{held} frames held for the estimator", style="yellow"))
+        line = Text(f"{held.held_frames} frames held for the estimator", style="yellow")
+        if held.dropped_frames:  # the hold is bounded: beyond it the log loses frames
+            line.append(f"  drop {held.dropped_frames}", style="bold red")
+        table.add_row(line)
     table.add_row(_path(status.path, width))
     return table
 
@@ -86,9 +90,10 @@ class RecordingPanel(Static):
         status: RecordingStatus | None,
         last: RecordingStatus | None = None,
         stream: str | None = None,
-        held: int | None = None,
+        held: WarmUpStatus | None = None,
     ) -> None:
-        """``held``: frames waiting for the estimator's kernel, logged once it is ready."""
+        """``held``: the estimator's preparation (frames waiting for its kernel, logged once
+        it is ready; those beyond the hold's bound dropped)."""
         table = recording_table(status, last, stream, self.content_size.width or None, held)
         self.update(table, layout=table.row_count != self._rows)
         self._rows = table.row_count
