@@ -117,7 +117,7 @@ def write_emulation_chunks(
     """:func:`write_emulation` for a run that comes in chunks (each with ``frames`` and
     ``truth``, e.g. :func:`devices.emulator.stream.simulate_chunks`): each chunk's frames,
     then its truth, so the run is never in memory whole."""
-    from devices.emulator.simulation import TRUTH_DTYPE
+    from devices.emulator.engine import TRUTH_DTYPE
 
     parts = ((_as_frames(c.frames), c.truth) for c in chunks)
     base_id = int(getattr(scenario, "base_id", DEFAULT_BASE))

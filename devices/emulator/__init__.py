@@ -10,6 +10,7 @@ Players put a simulation on a python-can bus, a pseudo-terminal or a file; see
 :mod:`devices.emulator.player` and docs/EMULATOR.md.
 """
 
+from devices.emulator.engine import TRUTH_COLUMNS, TRUTH_DTYPE
 from devices.emulator.player import (
     CanPlayer,
     PtyPlayer,
@@ -29,8 +30,6 @@ from devices.emulator.scenario import (
 )
 from devices.emulator.simulation import (
     ODOMETER_TRUTH_DTYPE,
-    TRUTH_COLUMNS,
-    TRUTH_DTYPE,
     FaultEffect,
     Simulation,
     UartStream,

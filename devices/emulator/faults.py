@@ -1,6 +1,7 @@
 """Fault injection: pure functions that bend signals, codes, frame sequences and UART packets.
 
-Three layers, applied in this order by :mod:`devices.emulator.simulation`:
+Three layers, applied in this order (layer 1 by :mod:`devices.emulator.engine`, 2 and 3 by
+:mod:`devices.emulator.simulation` and :mod:`devices.emulator.stream`):
 
 1. signal faults inside the board (``drift``, ``spike``, ``saturate`` on the sensor value;
    ``stuck`` on the ADC code; ``status`` bits) -- seen on CAN and UART alike;
@@ -82,10 +83,10 @@ def pick(mask: np.ndarray, probability: float, rng: np.random.Generator) -> np.n
 # ------------------------------------------------------------------ layer 1: inside the board
 
 
-def apply_value_fault(
-    values: np.ndarray, fault: Fault, t_us: np.ndarray, rate_hz: int, rng: np.random.Generator
-) -> np.ndarray:
-    """drift, spike or saturate on the sensor values (3, n) in place; returns the samples hit."""
+def apply_value_fault(values: np.ndarray, fault: Fault, t_us: np.ndarray) -> np.ndarray:
+    """drift or saturate on the sensor values (3, n) in place; returns the samples hit.
+
+    (spike and stuck carry state across blocks: :mod:`devices.emulator.engine` does them.)"""
     win = in_window(t_us, fault)
     p = fault.params
     hit = np.zeros(len(t_us), dtype=bool)
@@ -94,42 +95,10 @@ def apply_value_fault(
         if fault.kind == "drift":
             dt = (t_us[win] - to_us(fault.start_s)) / 1e6
             row[win] += p["offset_mps2"] + p["rate_mps2_per_s"] * dt
-            hit |= win
-        elif fault.kind == "saturate":
+        else:  # saturate
             row[win] = p["value_mps2"]
-            hit |= win
-        elif fault.kind == "spike":
-            idx = np.flatnonzero(win)
-            if len(idx) == 0:
-                continue
-            expected = p["rate_hz"] * len(idx) / rate_hz
-            starts = np.unique(rng.choice(idx, size=min(rng.poisson(expected), len(idx))))
-            signs = np.where(rng.random(len(starts)) < 0.5, -1.0, 1.0)
-            for k in range(p["width_samples"]):
-                at = starts + k
-                keep = at <= idx[-1]
-                row[at[keep]] += signs[keep] * p["amplitude_mps2"]
-                hit[at[keep]] = True
+        hit |= win
     return np.flatnonzero(hit)
-
-
-def apply_stuck(
-    codes: np.ndarray, status: np.ndarray, fault: Fault, t_us: np.ndarray
-) -> np.ndarray:
-    """Freeze code and status of the target channels (3, n) in place; returns the samples hit.
-
-    The ADC register stops updating: it repeats the last value before the window (the first
-    value when the window starts the run), or the fault's ``code`` when given.
-    """
-    idx = np.flatnonzero(in_window(t_us, fault))
-    if len(idx) == 0:
-        return idx
-    last = max(idx[0] - 1, 0)
-    for ch in target_channels(fault):
-        code = fault.params["code"]
-        codes[ch - 1, idx] = codes[ch - 1, last] if code is None else code
-        status[ch - 1, idx] = status[ch - 1, last] if code is None else 0
-    return idx
 
 
 def apply_status_bits(status: np.ndarray, fault: Fault, t_us: np.ndarray) -> np.ndarray:

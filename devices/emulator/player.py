@@ -26,7 +26,7 @@ import numpy as np
 
 from devices.cpu_placement import live_cpus, pin_thread
 from devices.emulator.scenario import Scenario, load_scenario
-from devices.emulator.simulation import TRUTH_COLUMNS, Simulation, UartStream, simulate
+from devices.emulator.simulation import Simulation, UartStream, simulate
 from devices.errors import BenchError
 
 if TYPE_CHECKING:
@@ -337,16 +337,12 @@ def write_output(
 
 
 def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:
-    """The truth as CSV: time_s, counter, gradient_permil, accel_mps2, speed_mps, position_m."""
+    """The truth as CSV, one row per sampling instant (columns: engine.TRUTH_COLUMNS)."""
+    from devices.emulator.stream_out import write_truth_rows
+
     p = Path(path)
     try:
-        np.savetxt(
-            p,
-            np.column_stack([truth[c] for c in TRUTH_COLUMNS]),
-            fmt=["%.6f", "%d", "%.12g", "%.12g", "%.12g", "%.12g"],
-            delimiter=",",
-            header=",".join(TRUTH_COLUMNS),
-            comments="",
-        )
+        with p.open("wb") as f:
+            write_truth_rows(f, truth, header=True)
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None

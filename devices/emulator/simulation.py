@@ -8,48 +8,27 @@ prints six decimals, parses back to the identical float64.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from devices.emulator import faults as fx
-from devices.emulator.board import FrameSet, adc_frames, merge, speed_frames, status_frames
+from devices.emulator.board import FrameSet, merge, speed_frames, status_frames
+from devices.emulator.engine import Engine
 from devices.emulator.motion import scenario_motion
 from devices.emulator.odometer import quantise_speed, wheel_error
 from devices.emulator.scenario import Fault, Scenario
-from devices.emulator.vibration import body_vibration
-from devices.emulator.world import (
-    board_temperature,
-    body_specific_force,
-    curve_normal_accel,
-    gradient_profile,
-    gradient_slope,
-    quantise,
-    sensor_output,
-    specific_force,
-)
+from devices.emulator.world import board_temperature
 from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import (
     FRAME_DLC,
     SPEED_REF_RATE_HZ,
-    STATUS_OVR,
     STATUS_RATE_HZ,
     BoardState,
     FrameKind,
 )
-
-TRUTH_DTYPE = np.dtype(
-    [
-        ("time_s", "<f8"),  # sampling instant, same time base as the frames' t
-        ("counter", "<i8"),  # unwrapped sample counter: counter0 + n (wire counter = this % 256)
-        ("gradient_permil", "<f8"),  # at the train's position
-        ("accel_mps2", "<f8"),  # d(speed)/dt along the track
-        ("speed_mps", "<f8"),
-        ("position_m", "<f8"),
-    ]
-)
-TRUTH_COLUMNS: tuple[str, ...] = TRUTH_DTYPE.names or ()
 
 ODOMETER_TRUTH_DTYPE = np.dtype(
     [
@@ -181,14 +160,10 @@ class Simulation:
         return self.uart_stream().data
 
     def summary(self) -> str:
-        kinds = self.frame_kind
         sc = self.scenario
-        lines = [
-            f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
-            f"{len(self.frames)} frames ({int((kinds == FrameKind.ADC).sum())} ADC, "
-            f"{int((kinds == FrameKind.STATUS).sum())} status, "
-            f"{int((kinds == FrameKind.SPEED).sum())} speed)"
-        ]
+        kinds, n = np.unique(self.frame_kind, return_counts=True)
+        by_kind = dict(zip(kinds.tolist(), n.tolist(), strict=True))
+        lines = [summary_headline(sc, len(self.frames), by_kind)]
         lines += [f"  fault {e.describe()}" for e in self.effects]
         if self._uart is not None:
             lines += [f"  fault {e.describe()}" for e in self._uart.effects]
@@ -201,61 +176,28 @@ class Simulation:
         return "\n".join(lines)
 
 
+def summary_headline(sc: Scenario, frames: int, by_kind: Mapping[int, int]) -> str:
+    """The first line of a run's summary: what ran and how many frames of each kind."""
+    return (
+        f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
+        f"{frames} frames ({by_kind.get(FrameKind.ADC, 0)} ADC, "
+        f"{by_kind.get(FrameKind.STATUS, 0)} status, {by_kind.get(FrameKind.SPEED, 0)} speed)"
+    )
+
+
 def simulate(sc: Scenario) -> Simulation:
     """Run the scenario: world -> sensors -> ADC -> frames -> faults -> bus schedule."""
-    rate = sc.sample_rate_hz
     n = sc.n_samples
-    idx = np.arange(n, dtype=np.int64)
-    sample_us = (idx * 1_000_000 + rate // 2) // rate
-    t = sample_us / 1e6
     start_us = fx.to_us(sc.start_time_s)
     duration_us = fx.to_us(sc.duration_s)
 
-    # --- the world and the sensors
-    motion = scenario_motion(sc, t)
-    grad = gradient_profile(sc.track, sc.vertical_curve_m, motion.position_m)
-    body_x, body_z = body_vibration(
-        sc.vibration, t, motion.speed_mps, fx.rng_for(sc.seed, fx.LAYER_VIBRATION)
-    )
-    if sc.vertical_curve_accel:
-        slope = gradient_slope(sc.track, sc.vertical_curve_m, motion.position_m)
-        body_z += curve_normal_accel(motion.speed_mps, grad, slope)
-    extra = sc.vibration.active or sc.vertical_curve_accel
-    rise = board_temperature(sc.board, t) - sc.board.temperature_c
-    values = np.empty((3, n), dtype=np.float64)
-    for i, ch in enumerate(sc.channels):
-        if extra:
-            ideal = body_specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg, body_x, body_z)
-        else:
-            ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
-        rng = fx.rng_for(sc.seed, fx.LAYER_NOISE, i + 1)
-        values[i] = sensor_output(ideal, ch, t, rng, rise)
-
-    # --- layer 1: faults inside the board
-    hit: dict[int, np.ndarray] = {}
-    for f in sc.faults:
-        if f.kind in ("drift", "spike", "saturate"):
-            rng = fx.rng_for(sc.seed, fx.LAYER_FAULT, f.index)
-            hit[f.index] = fx.apply_value_fault(values, f, sample_us, rate, rng)
-    codes, over = quantise(values)
-    status = np.where(over, STATUS_OVR, 0).astype(np.uint8)
-    for f in sc.faults:
-        if f.kind == "stuck":
-            hit[f.index] = fx.apply_stuck(codes, status, f, sample_us)
-    for f in sc.faults:
-        if f.kind == "status":
-            hit[f.index] = fx.apply_status_bits(status, f, sample_us)
+    # --- the world, the sensors and the board's own faults: the engine, in one block
+    block = Engine(sc).block(0, n)
+    hit = {index: np.flatnonzero(mask) for index, mask in block.hit.items()}
 
     # --- frames of the three streams (counter jumps are part of what the sender sends)
     jumps = [f for f in sc.faults if f.kind == "counter_jump"]
-    counters = np.tile(sc.counter0 + idx, (3, 1))
-    for f in jumps:
-        win = fx.in_window(sample_us, f)
-        for ch in fx.target_channels(f):
-            counters[ch - 1, win] += f.params["jump"]
-    ticks = sc.board_time0_ticks + (idx * 10_000 + rate // 2) // rate
-    parts = [adc_frames(sc.base_id, sample_us, sc.board.latency_us, counters, codes, status, ticks)]
-    parts.append(_status_stream(sc, duration_us, jumps))
+    parts = [block.adc, _status_stream(sc, duration_us, jumps)]
     odometer = np.zeros(0, dtype=ODOMETER_TRUTH_DTYPE)
     if sc.speed_ref:
         speed_set, odometer = _speed_stream(sc, duration_us, jumps)
@@ -360,19 +302,12 @@ def simulate(sc: Scenario) -> Simulation:
             eff = FaultEffect(f, rows, samples=_adc_samples(nominal, uids[rows]))
         effects.append(eff)
 
-    truth = np.zeros(n, dtype=TRUTH_DTYPE)
-    truth["time_s"] = (start_us + sample_us) / 1e6
-    truth["counter"] = sc.counter0 + idx
-    truth["gradient_permil"] = grad
-    truth["accel_mps2"] = motion.accel_mps2
-    truth["speed_mps"] = motion.speed_mps
-    truth["position_m"] = motion.position_m
     return Simulation(
         scenario=sc,
         frames=frames,
         frame_uid=uids,
         frame_copy=tag > 0,
-        truth=truth,
+        truth=block.truth,
         effects=tuple(effects),
         nominal=nominal,
         board_uid=board_uid,

@@ -5,17 +5,18 @@ The chunks hold, concatenated, exactly the frames, truth and UART bytes of
 ``simulate(scenario)`` (tests/test_emulator_stream.py holds them equal bit for bit over the
 fault kinds, with chunks small enough to split every fault window). That rests on:
 
-* the world, the sensors and the board are functions of the instant; each random draw
-  comes from its own generator (per layer and fault), drawn in frame order, and numpy's
-  generators give the same numbers drawn in pieces as in one call;
+* the samples come from the one world-to-sensor engine (:mod:`devices.emulator.engine`),
+  which :func:`simulate` runs as a single block and this module block by block; it carries
+  what crosses a block's end (generators, spike pulses, a stuck code);
+* each random draw of the frame faults comes from its own generator (per layer and fault),
+  drawn in frame order, and numpy's generators give the same numbers drawn in pieces as in
+  one call;
 * where :func:`simulate` draws twice from one fault's generator (a CRC fault picks its
   frames, then the bits it flips; a UART fault picks packets, then corrupts them), the
   second draw here comes from a copy advanced past the first draw's total, which a first,
   cheap pass (no sensor values, no payloads) counts;
 * the bus schedule (each frame waits for the previous one) carries its last send time;
-  a reorder fault carries the frames it delayed past the chunk's end into the next chunk;
-  a stuck fault carries the code it repeats; spike positions are drawn for the whole
-  window up front (a few integers per spike).
+  a reorder fault carries the frames it delayed past the chunk's end into the next chunk.
 """
 
 from __future__ import annotations
@@ -26,36 +27,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from devices.emulator import faults as fx
-from devices.emulator.board import FrameSet, adc_frames, merge
-from devices.emulator.motion import scenario_motion
+from devices.emulator.board import FrameSet, merge
+from devices.emulator.engine import Engine, sample_us
 from devices.emulator.scenario import Fault, Scenario
 from devices.emulator.simulation import (
-    TRUTH_DTYPE,
     FaultEffect,
     _speed_stream,
     _status_stream,
     _targeted,
+    summary_headline,
 )
-from devices.emulator.stream_carry import ROW_DTYPE, Reorder, Spikes
-from devices.emulator.vibration import body_vibration
-from devices.emulator.world import (
-    board_temperature,
-    body_specific_force,
-    curve_normal_accel,
-    gradient_profile,
-    gradient_slope,
-    quantise,
-    sensor_output,
-    specific_force,
-)
+from devices.emulator.stream_carry import ROW_DTYPE, Reorder
 from protocol.frames import FRAME_DTYPE
-from protocol.layout import FRAME_DLC, STATUS_OVR, FrameKind
+from protocol.layout import FRAME_DLC, FrameKind
 
 CHUNK_S = 10.0
 """Seconds of sampling instants per chunk (30 000 frames at 1 kHz: a few MB)."""
 
-_VALUE = ("drift", "spike", "saturate")
-_HIT = (*_VALUE, "stuck", "status")
+_HIT = ("drift", "spike", "saturate", "stuck", "status")
 
 
 @dataclass(slots=True)
@@ -89,12 +78,7 @@ class RunCounts:
 
     def summary(self) -> str:
         sc = self.scenario
-        k = self.kinds
-        lines = [
-            f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
-            f"{self.frames} frames ({k.get(FrameKind.ADC, 0)} ADC, "
-            f"{k.get(FrameKind.STATUS, 0)} status, {k.get(FrameKind.SPEED, 0)} speed)"
-        ]
+        lines = [summary_headline(sc, self.frames, self.kinds)]
         for f in sc.faults:
             if f.target == "uart":
                 continue
@@ -158,17 +142,17 @@ class _Run:
         self.sc, self.uart, self.counts = sc, uart, counts
         self.counting = count_into is not None
         self.count_into = count_into
+        self.engine = Engine(sc, values=not self.counting)
         self.rate = sc.sample_rate_hz
         self.n = sc.n_samples
         self.step = max(1, round(chunk_s * self.rate))
         self.start_us = fx.to_us(sc.start_time_s)
         duration_us = fx.to_us(sc.duration_s)
-        self.jumps = [f for f in sc.faults if f.kind == "counter_jump"]
-        self.status_all = _status_stream(sc, duration_us, self.jumps)
-        self.speed_all = _speed_stream(sc, duration_us, self.jumps)[0] if sc.speed_ref else None
+        jumps = [f for f in sc.faults if f.kind == "counter_jump"]
+        self.status_all = _status_stream(sc, duration_us, jumps)
+        self.speed_all = _speed_stream(sc, duration_us, jumps)[0] if sc.speed_ref else None
         # one generator per (layer, fault), drawn in frame order across the chunks
         seed = sc.seed
-        self.noise = [fx.rng_for(seed, fx.LAYER_NOISE, i + 1) for i in range(len(sc.channels))]
         self.pick_rng = {f.index: fx.rng_for(seed, fx.LAYER_FAULT, f.index) for f in sc.faults}
         self.flip_rng: dict[int, np.random.Generator] = {}
         self.uart_pick: dict[int, np.random.Generator] = {}
@@ -183,56 +167,10 @@ class _Run:
                 g = fx.rng_for(seed, fx.LAYER_UART, f.index)
                 g.bit_generator.advance((totals.uart if totals else {}).get(f.index, 0))
                 self.uart_rows[f.index] = g
-        self.spikes = {} if self.counting else self._spike_plans()
-        self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.last_send: int | None = None
         self.reorders = [
             Reorder(f, self.pick_rng[f.index]) for f in sc.faults if f.kind == "reorder"
         ]
-
-    # -- whole-run plans -----------------------------------------------------------------
-    def _sample_us(self, idx: np.ndarray) -> np.ndarray:
-        return (idx * 1_000_000 + self.rate // 2) // self.rate
-
-    def _spike_plans(self) -> dict[int, list[Spikes]]:
-        """Per spike fault, per channel, the spike positions apply_value_fault draws for the
-        whole window (as bits: 1/8 byte per sample); their signs are drawn as chunks need
-        them (they come after the positions from the same generator, in position order)."""
-        plans: dict[int, list[Spikes]] = {}
-        for f in self.sc.faults:
-            if f.kind != "spike":
-                continue
-            rng = self.pick_rng[f.index]
-            i0 = self._first_sample_at(fx.to_us(f.start_s))
-            length = max(0, self._first_sample_at(fx.to_us(f.end_s)) - i0)
-            plans[f.index] = []
-            for ch in fx.target_channels(f):
-                if length == 0:
-                    continue
-                expected = f.params["rate_hz"] * length / self.rate
-                size = min(rng.poisson(expected), length)
-                bits = np.zeros(length, dtype=bool)
-                for done in range(0, size, 1 << 20):  # rng.choice(idx, size), in pieces
-                    bits[rng.integers(0, length, size=min(1 << 20, size - done))] = True
-                count = int(np.count_nonzero(bits))
-                signs = np.random.Generator(type(rng.bit_generator)())
-                signs.bit_generator.state = rng.bit_generator.state
-                for done in range(0, count, 1 << 20):  # past the signs: the next channel's
-                    rng.random(min(1 << 20, count - done))  # (advance() would drop a
-                    # buffered half-word of the position draws)
-                plans[f.index].append(Spikes(ch, i0, length, np.packbits(bits), signs))
-        return plans
-
-    def _first_sample_at(self, us: int) -> int:
-        """The first sample index whose instant is >= ``us`` (n if none)."""
-        lo, hi = 0, self.n
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if int(self._sample_us(np.array([mid]))[0]) < us:
-                lo = mid + 1
-            else:
-                hi = mid
-        return lo
 
     # -- the chunks ----------------------------------------------------------------------
     def chunks(self) -> Iterator[Chunk]:
@@ -241,112 +179,18 @@ class _Run:
         for k, a in enumerate(bounds):
             b = min(self.n, a + self.step)
             last = k == len(bounds) - 1
-            lo = None if k == 0 else int(self._sample_us(np.array([a]))[0]) + latency
-            hi = None if last else int(self._sample_us(np.array([b]))[0]) + latency
+            lo = None if k == 0 else int(sample_us(self.rate, np.array([a]))[0]) + latency
+            hi = None if last else int(sample_us(self.rate, np.array([b]))[0]) + latency
             yield self._chunk(a, b, lo, hi, last)
 
     def _chunk(self, a: int, b: int, lo: int | None, hi: int | None, last: bool) -> Chunk:
-        sc = self.sc
-        idx = np.arange(a, b, dtype=np.int64)
-        sample_us = self._sample_us(idx)
-        m = len(idx)
-        hit: dict[int, np.ndarray] = {}  # fault index -> local sample mask
-        if self.counting:
-            codes = np.zeros((3, m), dtype=np.int64)
-            status = np.zeros((3, m), dtype=np.uint8)
-        else:
-            codes, status = self._board(idx, sample_us, hit)
-        counters = np.tile(sc.counter0 + idx, (3, 1))
-        for f in self.jumps:
-            win = fx.in_window(sample_us, f)
-            for ch in fx.target_channels(f):
-                counters[ch - 1, win] += f.params["jump"]
-        ticks = sc.board_time0_ticks + (idx * 10_000 + self.rate // 2) // self.rate
-        adc = adc_frames(sc.base_id, sample_us, sc.board.latency_us, counters, codes, status, ticks)
-        adc.seq += a
-        parts = [adc, _between(self.status_all, lo, hi)]
+        block = self.engine.block(a, b)
+        parts = [block.adc, _between(self.status_all, lo, hi)]
         if self.speed_all is not None:
             parts.append(_between(self.speed_all, lo, hi))
         nominal = merge(parts)
-        frames, packets = self._frames(nominal, hit, a, m, last)
-        truth = np.zeros(0, dtype=TRUTH_DTYPE) if self.counting else self._truth(idx, sample_us)
-        return Chunk(frames, truth, packets)
-
-    def _board(
-        self, idx: np.ndarray, sample_us: np.ndarray, hit: dict[int, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor values -> codes and status of these instants, board faults applied."""
-        sc = self.sc
-        t = sample_us / 1e6
-        motion = scenario_motion(sc, t)
-        grad = gradient_profile(sc.track, sc.vertical_curve_m, motion.position_m)
-        body_x, body_z = body_vibration(
-            sc.vibration, t, motion.speed_mps, fx.rng_for(sc.seed, fx.LAYER_VIBRATION)
-        )
-        if sc.vertical_curve_accel:
-            slope = gradient_slope(sc.track, sc.vertical_curve_m, motion.position_m)
-            body_z += curve_normal_accel(motion.speed_mps, grad, slope)
-        extra = sc.vibration.active or sc.vertical_curve_accel
-        rise = board_temperature(sc.board, t) - sc.board.temperature_c
-        m = len(idx)
-        values = np.empty((3, m), dtype=np.float64)
-        for i, ch in enumerate(sc.channels):
-            if extra:
-                ideal = body_specific_force(
-                    motion.accel_mps2, grad, sc.g, ch.angle_deg, body_x, body_z
-                )
-            else:
-                ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
-            values[i] = sensor_output(ideal, ch, t, self.noise[i], rise)
-        a = int(idx[0]) if m else 0
-        for f in sc.faults:
-            if f.kind in ("drift", "saturate"):
-                rows = fx.apply_value_fault(values, f, sample_us, self.rate, self.pick_rng[f.index])
-                hit[f.index] = _mask(rows, m)
-            elif f.kind == "spike":
-                mask = np.zeros(m, dtype=bool)
-                width, amp = f.params["width_samples"], f.params["amplitude_mps2"]
-                for plan in self.spikes[f.index]:
-                    at, value = plan.pulses(a, m, width, amp)
-                    np.add.at(values[plan.channel - 1], at, value)  # in order, as k by k
-                    mask[at] = True
-                hit[f.index] = mask
-        codes, over = quantise(values)
-        status = np.where(over, STATUS_OVR, 0).astype(np.uint8)
-        for f in sc.faults:
-            if f.kind == "stuck":
-                hit[f.index] = self._stuck(f, codes, status, sample_us, a)
-        for f in sc.faults:
-            if f.kind == "status":
-                hit[f.index] = _mask(fx.apply_status_bits(status, f, sample_us), m)
-        return codes, status
-
-    def _stuck(
-        self, f: Fault, codes: np.ndarray, status: np.ndarray, sample_us: np.ndarray, a: int
-    ) -> np.ndarray:
-        """apply_stuck over chunks: the value repeated is the one at the sample before the
-        window (or the first), taken in the chunk that holds it, before this fault acts."""
-        m = len(sample_us)
-        first = self._first_sample_at(fx.to_us(f.start_s))
-        end = self._first_sample_at(fx.to_us(f.end_s))
-        if first >= end:
-            return np.zeros(m, dtype=bool)
-        src = max(first - 1, 0)
-        chans = [ch - 1 for ch in fx.target_channels(f)]
-        if a <= src < a + m:
-            self.stuck_carry[f.index] = (
-                codes[chans, src - a].copy(),
-                status[chans, src - a].copy(),
-            )
-        win = fx.in_window(sample_us, f)
-        if not win.any():
-            return win
-        held_codes, held_status = self.stuck_carry[f.index]
-        for j, ch in enumerate(chans):
-            code = f.params["code"]
-            codes[ch, win] = held_codes[j] if code is None else code
-            status[ch, win] = held_status[j] if code is None else 0
-        return win
+        frames, packets = self._frames(nominal, block.hit, a, b - a, last)
+        return Chunk(frames, block.truth, packets)
 
     def _frames(
         self, nominal: FrameSet, hit: dict[int, np.ndarray], a: int, m: int, last: bool
@@ -504,32 +348,12 @@ class _Run:
             counts.packets_broken += len(broken)
         return out
 
-    def _truth(self, idx: np.ndarray, sample_us: np.ndarray) -> np.ndarray:
-        sc = self.sc
-        motion = scenario_motion(sc, sample_us / 1e6)
-        truth = np.zeros(len(idx), dtype=TRUTH_DTYPE)
-        truth["time_s"] = (self.start_us + sample_us) / 1e6
-        truth["counter"] = sc.counter0 + idx
-        truth["gradient_permil"] = gradient_profile(
-            sc.track, sc.vertical_curve_m, motion.position_m
-        )
-        truth["accel_mps2"] = motion.accel_mps2
-        truth["speed_mps"] = motion.speed_mps
-        truth["position_m"] = motion.position_m
-        return truth
-
 
 def _between(fs: FrameSet, lo: int | None, hi: int | None) -> FrameSet:
     """The frames of a stream queued in [lo, hi) (None: open)."""
     i = 0 if lo is None else int(np.searchsorted(fs.queue_us, lo, side="left"))
     j = len(fs) if hi is None else int(np.searchsorted(fs.queue_us, hi, side="left"))
     return fs.take(np.arange(i, j))
-
-
-def _mask(rows: np.ndarray, m: int) -> np.ndarray:
-    out = np.zeros(m, dtype=bool)
-    out[rows] = True
-    return out
 
 
 __all__ = ["CHUNK_S", "Chunk", "RunCounts", "simulate_chunks"]

@@ -1,6 +1,7 @@
-"""What the virtual board's chunked run carries from one chunk to the next, for the faults
-whose effect crosses a chunk's end: a spike fault's pulses (:class:`Spikes`) and a reorder
-fault's delayed frames (:class:`Reorder`). :mod:`devices.emulator.stream` drives them."""
+"""What the virtual board's run carries from one block to the next, for the faults whose
+effect crosses a block's end: a spike fault's pulses (:class:`Spikes`, driven by
+:mod:`devices.emulator.engine`) and a reorder fault's delayed frames (:class:`Reorder`,
+driven by :mod:`devices.emulator.stream`)."""
 
 from __future__ import annotations
 
@@ -37,8 +38,9 @@ class Spikes:
         return np.flatnonzero(raw) + lo
 
     def pulses(self, a: int, m: int, width: int, amp: float) -> tuple[np.ndarray, np.ndarray]:
-        """Local sample indices and values to add for chunk [a, a + m), ordered as
-        apply_value_fault adds them (by offset k within the pulse, then by start)."""
+        """Local sample indices and values to add for chunk [a, a + m), ordered by offset k
+        within the pulse, then by start (overlapping pulses add in the same order whatever
+        the chunk)."""
         hi = a + m - self.i0
         new = self._starts(self.drawn, hi)
         self.drawn = max(self.drawn, min(hi, self.length))

@@ -17,8 +17,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from devices.emulator.engine import TRUTH_COLUMNS
 from devices.emulator.scenario import Scenario
-from devices.emulator.simulation import TRUTH_COLUMNS
 from devices.emulator.stream import CHUNK_S, Chunk, RunCounts, simulate_chunks
 from devices.errors import BenchError
 
@@ -29,11 +29,12 @@ McapStreamWriter = Callable[[Path, Iterator[Chunk], Scenario], dict[str, int]]
 
 
 def write_truth_rows(f: IO[bytes], truth: np.ndarray, header: bool) -> None:
-    """Truth rows as write_truth_csv writes them (the header line only when asked)."""
+    """Truth rows of the CSV (time_s, counter, then the physical columns; the header line
+    only when asked): ``bench emulate --truth`` and write_truth_csv both write them."""
     np.savetxt(
         f,
         np.column_stack([truth[c] for c in TRUTH_COLUMNS]),
-        fmt=["%.6f", "%d", "%.12g", "%.12g", "%.12g", "%.12g"],
+        fmt=["%.6f", "%d"] + ["%.12g"] * (len(TRUTH_COLUMNS) - 2),
         delimiter=",",
         header=",".join(TRUTH_COLUMNS) if header else "",
         comments="",
