@@ -80,6 +80,14 @@ def hand_motion(t: float) -> tuple[float, float, float]:
     return 0.0, 0.0, 310.0
 
 
+def hand_curve_accel(x: float, v: float) -> float:
+    """v^2/R normal to the track: 1/R = d(alpha)/dx = (G' / 1000) / (1 + (G / 1000)^2) on the
+    40 m curve (G' = 20 permil / 40 m); the abrupt change at 300 m has no curve."""
+    if not 80.0 < x < 120.0:
+        return 0.0
+    return v * v * (0.020 / 40.0) / (1.0 + (hand_gradient(x) / 1000.0) ** 2)
+
+
 def hand_gradient(x: float) -> float:
     """0 until 100 m, 20 from 100 m, -10 from 300 m; the 0 -> 20 change spread linearly over
     40 m centred on 100 m, the 20 -> -10 change abrupt (vertical_curve_m = 0)."""
@@ -136,11 +144,12 @@ def test_codes_agree_with_icd_formula_within_one_lsb(sim):
         assert r.channel == i % 3 + 1, "ch1, ch2, ch3 back to back"
         assert r.counter == k % 256
         t = k / 100
-        a, _, x = hand_motion(t)
+        a, v, x = hand_motion(t)
         alpha = math.atan(hand_gradient(x) / 1000.0)
         m = ch_models[r.channel - 1]
         theta = math.radians(m.angle_deg)
         value = a * math.cos(theta) + G * math.sin(alpha + theta)
+        value += hand_curve_accel(x, v) * math.sin(theta)  # normal to the track
         value = value * (1.0 + m.scale_error) + m.bias_mps2
         value += m.vibration_mps2 * math.sin(
             2 * math.pi * m.vibration_hz * t + math.radians(m.vibration_phase_deg)

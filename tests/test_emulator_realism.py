@@ -336,9 +336,12 @@ def test_vertical_curve_adds_v_squared_over_r_normal_to_the_track():
             want = fx * math.cos(math.radians(th)) + fz * math.sin(math.radians(th))
             assert acc[k, ch] == pytest.approx(want, abs=NOMINAL_SCALE), (k, ch)
     # about 0.04 m/s^2 on a 10 km radius at 20 m/s, halved by sin 30 on ch1
-    plain = sim_of(CURVE.replace("vertical_curve_accel = true", ""))
+    plain = sim_of(CURVE.replace("vertical_curve_accel = true", "vertical_curve_accel = false"))
     mid = int(np.argmin(np.abs(x - 200.0)))
     assert acc[mid, 0] - adc(plain)[mid, 0] == pytest.approx(0.04 * S30, rel=1e-3)
+    # a real car always feels it: a scenario that does not say so gets it too
+    default = sim_of(CURVE.replace("vertical_curve_accel = true\n", ""))
+    assert np.array_equal(adc(default), acc)
 
 
 # ----------------------------------------------------------------------- temperature drift

@@ -183,7 +183,7 @@ class Scenario:
     initial_speed_mps: float = 0.0
     initial_position_m: float = 0.0
     vertical_curve_m: float = 50.0
-    vertical_curve_accel: bool = False  # add v^2/R normal to the track on vertical curves
+    vertical_curve_accel: bool = True  # add v^2/R normal to the track on vertical curves
     jerk_mps3: float = 0.0  # ramp limit of the acceleration between phases; 0 = steps
     counter0: int = 0
     board_time0_ticks: int = 0
@@ -505,7 +505,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         initial_speed_mps=top.num("initial_speed_mps", 0.0, -150.0, 150.0),
         initial_position_m=top.num("initial_position_m", 0.0, -1e7, 1e7),
         vertical_curve_m=top.num("vertical_curve_m", 50.0, 0.0, 1e4),
-        vertical_curve_accel=top.flag("vertical_curve_accel", False),
+        vertical_curve_accel=top.flag("vertical_curve_accel", True),
         jerk_mps3=top.num("jerk_mps3", 0.0, 0.0, 100.0),
         counter0=top.integer("counter0", 0, 0, 255),
         board_time0_ticks=top.integer("board_time0_ticks", 0, 0, 65535),
