@@ -202,6 +202,25 @@ def test_the_odometer_truth_says_what_each_speed_ref_got_wrong():
     assert np.allclose(od["reported_mps"], np.round(true + od["wheel_error_mps"], 3), atol=1e-9)
 
 
+@pytest.mark.parametrize("e", [0.03, -0.02])
+def test_a_wheel_diameter_error_scales_every_reported_speed(e: float):
+    """A wheel worn 3 % smaller than configured: the odometer takes each turn for 3 % more
+    than it rolls and reports the wheel's speed times (1 + e), slide and slip included (a
+    wheel too large, e < 0, reports low); the odometer truth says e."""
+    sim = sim_of(SLIDE + f"wheel_diameter_error = {e}\n")
+    _t, v = speeds(sim)
+    od = sim.odometer
+    tm = od["measured_s"]
+    true = np.where(tm < 2.0, 20.0, np.where(tm < 14.0, 20.0 - (tm - 2.0), 8.0 + 0.8 * (tm - 14.0)))
+    wheel = true + od["wheel_error_mps"]
+    assert np.allclose(v, np.round(wheel * (1.0 + e), 3), atol=1e-9)
+    assert v[0] == pytest.approx(20.0 * (1.0 + e), abs=1e-9)  # 20.6 (19.6) m/s at 20 m/s
+    assert (od["wheel_diameter_error"] == e).all()
+    assert np.array_equal(od["train_speed_mps"], sim_of(SLIDE).odometer["train_speed_mps"])
+    with pytest.raises(ConfigError, match=r"odometer\.wheel_diameter_error: must be <= 0\.05"):
+        sim_of(SLIDE + "wheel_diameter_error = 0.06\n")
+
+
 def test_slide_only_inside_the_low_adhesion_window():
     text = SLIDE.replace("slip_period_s = 0.5", "slip_period_s = 0.5\nlow_adhesion_end_s = 6.0")
     t, v = speeds(sim_of(text))

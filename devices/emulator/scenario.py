@@ -122,6 +122,7 @@ class OdometerModel:
     wsp_jitter: float = 0.0  # each cycle's depth is depth * (1 - wsp_jitter * U(0, 1))
     low_adhesion_start_s: float = 0.0  # slide and slip happen only inside this time window
     low_adhesion_end_s: float | None = None  # None = the end of the run
+    wheel_diameter_error: float = 0.0  # e: reported speed = wheel speed * (1 + e)
 
 
 @dataclass(frozen=True, slots=True)
@@ -317,6 +318,7 @@ def _parse_odometer(file: str, value: Any) -> OdometerModel:
         low_adhesion_end_s=(
             t.num("low_adhesion_end_s", 0.0, 0.0, None) if t.has("low_adhesion_end_s") else None
         ),
+        wheel_diameter_error=t.num("wheel_diameter_error", 0.0, -0.05, 0.05),
     )
     t.done()
     if o.low_adhesion_end_s is not None and o.low_adhesion_end_s <= o.low_adhesion_start_s:

@@ -37,6 +37,7 @@ ODOMETER_TRUTH_DTYPE = np.dtype(
         ("train_speed_mps", "<f8"),  # the train's true speed then
         ("wheel_error_mps", "<f8"),  # wheel slide (< 0) or slip (> 0) then
         ("reported_mps", "<f8"),  # what the frame carries (noise, quantisation), m/s
+        ("wheel_diameter_error", "<f8"),  # e: the wheel's speed is reported times (1 + e)
     ]
 )
 """One row per SPEED_REF frame the odometer sends (delivered or not): what it got wrong."""
@@ -365,6 +366,8 @@ def _speed_stream(
         od, measured, v.accel_mps2, v.speed_mps, sc.duration_s, fx.rng_for(sc.seed, fx.LAYER_WHEEL)
     )
     speed = v.speed_mps + wheel
+    if od.wheel_diameter_error:  # a worn (or wrongly configured) wheel: every turn is
+        speed = speed * (1.0 + od.wheel_diameter_error)  # taken for 1 + e of its length
     if od.noise_mps:
         noise = od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
         # a wheel-pulse odometer at rest reads 0
@@ -379,6 +382,7 @@ def _speed_stream(
     truth["train_speed_mps"] = v.speed_mps
     truth["wheel_error_mps"] = wheel
     truth["reported_mps"] = mm / 1000.0
+    truth["wheel_diameter_error"] = od.wheel_diameter_error
     return speed_frames(when, counters, mm, ticks), truth
 
 
