@@ -40,12 +40,19 @@ def test_a_run_stopped_by_the_operator_before_any_frame_says_so_but_is_no_error(
     import time
 
     channel = f"quiet-{uuid.uuid4().hex[:8]}"
-    cmd = [sys.executable, "-m", "bench", "run", "-i", "virtual", "-c", channel, "--no-log", "-q"]
-    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    cmd = [sys.executable, "-m", "bench", "run", "-i", "virtual", "-c", channel, "--no-log"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        time.sleep(1.0)  # not a bound: the run waits for frames that never come
+        assert proc.stderr is not None
+        # the --no-log warning comes after the run's signal handlers are in place (a fixed
+        # sleep raced the interpreter's start-up at load: SIGTERM killed it at import)
+        head = [proc.stderr.readline()]
+        while head[-1] and "--no-log" not in head[-1]:
+            head.append(proc.stderr.readline())
+        time.sleep(0.5)  # not a bound: the run waits for frames that never come
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=60)
+        _, rest = proc.communicate(timeout=60)
+        err = "".join(head) + rest
     finally:
         if proc.poll() is None:
             proc.kill()
