@@ -5,6 +5,14 @@ from __future__ import annotations
 import os
 import tempfile
 
+from hypothesis import settings
+
+# No wall-time bound in any test: hypothesis's default 200 ms deadline per example is one
+# (test_protocol_uart failed a 5-byte example at 273 ms on a fresh clone's suite at load 10).
+# Loaded here, before the test modules' @settings take it as their parent.
+settings.register_profile("bench", deadline=None)
+settings.load_profile("bench")
+
 
 def pytest_configure() -> None:
     """Compile (or load from numba's on-disk cache) the joint filter's kernel once per test
