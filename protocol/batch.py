@@ -1,55 +1,28 @@
-"""Vectorised decode of a frame batch: the array twin of :func:`protocol.can_codec.decode`.
+"""Decode of a frame batch: :func:`protocol.can_codec.decode` over arrays, one column a field.
 
 Returns one column per field; a column is meaningful only where ``kind`` and
 ``outcome`` say so (e.g. ``code`` for ADC frames with outcome OK).
 
-Two paths give the same columns: a live batch of a few frames is decoded in plain Python
-(numpy's fixed cost per call would dominate), a log's batch by strided views straight
-into the frame records (one pass per field, CRC two bytes per table lookup).
+One path for any batch length, a live step of one frame or a log's 65 536: strided views
+straight into the frame records (one pass per field, CRC two bytes per table lookup).
 """
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
-from protocol.crc import _CRC8_TABLE, frame_crc8_residue
+from protocol.crc import frame_crc8_residue
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import DEFAULT_BASE, FRAME_DLC, SPEED_REF_ID, FrameKind, Outcome
 from protocol.records import NOT_BOARD_FLAGS
 
-# plain ints: enum member access costs more than the numpy work on a one-frame batch
+# plain ints for the lookup tables below
 _OTHER, _STATUS, _ADC, _SPEED = (int(k) for k in FrameKind)
 _OK, _UNKNOWN_ID, _WRONG_DLC, _CRC_MISMATCH = (
     int(o) for o in (Outcome.OK, Outcome.UNKNOWN_ID, Outcome.WRONG_DLC, Outcome.CRC_MISMATCH)
 )
-
-SCALAR_MAX = 16
-"""Batches up to this many frames take the scalar path; the columns are the same."""
-
-DECODED_DTYPE = np.dtype(
-    [
-        ("can_id", "<i8"),
-        ("dlc", "u1"),
-        ("kind", "u1"),
-        ("channel", "u1"),
-        ("outcome", "u1"),
-        ("counter", "u1"),
-        ("code", "<i4"),
-        ("status", "u1"),
-        ("timestamp", "<u2"),
-        ("speed", "<i4"),
-        ("state", "u1"),
-        ("sample_rate", "<u2"),
-        ("temperature", "i1"),
-        ("supply", "u1"),
-        ("errors", "u1"),
-    ]
-)
-"""One decoded frame as a record (the scalar path builds its columns from these)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,86 +52,7 @@ class DecodedBatch:
         return ok
 
 
-def _columns(records: np.ndarray) -> DecodedBatch:
-    return DecodedBatch(*(records[name] for name in DECODED_DTYPE.names or ()))
-
-
-EMPTY_DECODED = _columns(np.zeros(0, dtype=DECODED_DTYPE))
-"""The decode of no frames (shared: zero-length columns cannot be written to)."""
-
-
-def decode_batch(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
-    """Decode a FRAME_DTYPE array. Pure and total: every row gets a kind and an outcome."""
-    if frames.dtype != FRAME_DTYPE:
-        frames = frames.astype(FRAME_DTYPE)
-    if len(frames) == 0:
-        return EMPTY_DECODED
-    if len(frames) <= SCALAR_MAX:
-        return decode_scalar(frames, base)
-    return decode_vector(frames, base)
-
-
-# -- scalar path ---------------------------------------------------------------------------
-_ROW = struct.Struct("<dIBB8B")
-assert _ROW.size == FRAME_DTYPE.itemsize
-
-
-def _classify(can_id: int, flags: int, base: int) -> tuple[int, int]:
-    """(kind, channel) exactly as the vector path decides them."""
-    if flags & NOT_BOARD_FLAGS:
-        return _OTHER, 0
-    if can_id == SPEED_REF_ID:
-        return _SPEED, 0
-    offset = can_id - base
-    if offset == 0:
-        return _STATUS, 0
-    if 1 <= offset <= 3:
-        return _ADC, offset
-    return _OTHER, 0
-
-
-def _decode_row(row: tuple[Any, ...], base: int) -> tuple[Any, ...]:
-    """One frame (unpacked FRAME_DTYPE record) -> one DECODED_DTYPE record."""
-    _, can_id, dlc, flags, d0, d1, d2, d3, d4, d5, d6, d7 = row
-    kind, channel = _classify(can_id, flags, base)
-    if kind == _OTHER:
-        outcome = _UNKNOWN_ID
-    elif dlc != FRAME_DLC:
-        outcome = _WRONG_DLC
-    else:
-        table = _CRC8_TABLE
-        crc = 0xFF
-        for b in (can_id & 0xFF, (can_id >> 8) & 0xFF, d0, d1, d2, d3, d4, d5, d6):
-            crc = table[crc ^ b]
-        outcome = _OK if crc ^ 0xFF == d7 else _CRC_MISMATCH
-    code = d1 | d2 << 8 | d3 << 16
-    speed = code | d4 << 24
-    return (
-        can_id,
-        dlc,
-        kind,
-        channel,
-        outcome,
-        d0,
-        code - (1 << 24) if code & 0x800000 else code,
-        d4,
-        d5 | d6 << 8,
-        speed - (1 << 32) if speed & 0x80000000 else speed,
-        d1,
-        d2 | d3 << 8,
-        d4 - 256 if d4 & 0x80 else d4,
-        d5,
-        d6,
-    )
-
-
-def decode_scalar(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
-    """The Python twin of :func:`decode_vector`, for a live batch of a few frames."""
-    rows = [_decode_row(row, base) for row in _ROW.iter_unpack(frames.tobytes())]
-    return _columns(np.array(rows, dtype=DECODED_DTYPE))
-
-
-# -- vector path ---------------------------------------------------------------------------
+# -- strided views into the frame records -------------------------------------------------
 _OFFSET = {name: spec[1] for name, spec in (FRAME_DTYPE.fields or {}).items()}
 
 
@@ -205,8 +99,10 @@ _OUTCOME_OF_BITS = np.array(
 )
 
 
-def decode_vector(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
-    """Decode a FRAME_DTYPE array of any length with numpy."""
+def decode_batch(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
+    """Decode a FRAME_DTYPE array. Pure and total: every row gets a kind and an outcome."""
+    if frames.dtype != FRAME_DTYPE:
+        frames = frames.astype(FRAME_DTYPE)
     v = frames.view(_VIEW)
     ids = v["id"].astype(np.int64)
     cls = np.minimum((ids - base).view(np.uint64), 4)  # ids below base wrap to huge
@@ -236,3 +132,7 @@ def decode_vector(frames: np.ndarray, base: int = DEFAULT_BASE) -> DecodedBatch:
         supply=v["supply"].copy(),
         errors=v["errors"].copy(),
     )
+
+
+EMPTY_DECODED = decode_batch(np.zeros(0, dtype=FRAME_DTYPE))
+"""The decode of no frames, for a step that has none."""

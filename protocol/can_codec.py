@@ -1,6 +1,6 @@
 """Scalar encode/decode of the ACB-3 CAN frames (ICD section 1), one frame at a time.
 
-The vectorised twin for logs and bursts is :mod:`protocol.batch`; tests hold the two equal.
+The bench decodes frame batches with :mod:`protocol.batch`; tests hold it to this codec.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Vectorised decode (protocol.batch) equals the scalar decode, row by row, for every field.
+"""The batch decode (protocol.batch) equals the per-frame codec, row by row, for every field.
 
 The scalar codec is itself pinned to the ICD byte tables in test_protocol_can.py, so
 agreement here carries those hand-checked expectations over to the batch path.
@@ -102,6 +102,16 @@ def test_decode_batch_equals_scalar_decode(case: tuple[int, list[RawFrame]]) -> 
     assert len(batch) == len(rows)
     for i, frame in enumerate(rows):
         assert_row_equals_scalar(batch, i, frame, base)
+
+
+@settings(max_examples=30)
+@given(st.lists(frames(0x100), max_size=40))
+def test_a_strided_view_decodes_like_its_frames(rows: list[RawFrame]) -> None:
+    """A source may hand over a view (every other frame of a larger array)."""
+    batch = decode_batch(frames_from_raw(rows)[::2])
+    assert len(batch) == len(rows[::2])
+    for i, frame in enumerate(rows[::2]):
+        assert_row_equals_scalar(batch, i, frame, 0x100)
 
 
 def test_empty_batch() -> None:

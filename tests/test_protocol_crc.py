@@ -11,7 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from protocol.crc import crc8_j1850, crc16_ccitt_false, frame_crc8, frame_crc8_batch
+from protocol.crc import (
+    crc8_j1850,
+    crc16_ccitt_false,
+    frame_crc8,
+    frame_crc8_batch,
+    frame_crc8_residue,
+)
 
 CHECK_INPUT = b"123456789"
 
@@ -93,3 +99,29 @@ def test_frame_crc8_batch_equals_scalar(arrays: tuple[np.ndarray, np.ndarray]) -
     assert got.tolist() == [
         frame_crc8_ref(int(i), bytes(row)) for i, row in zip(ids, data, strict=True)
     ]
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.integers(0, 40).flatmap(
+        lambda n: st.tuples(
+            st.lists(st.integers(0, 2**32 - 1), min_size=n, max_size=n),
+            hnp.arrays(np.uint8, (n, 8)),
+            st.lists(st.booleans(), min_size=n, max_size=n),
+        )
+    )
+)
+def test_pair_table_residue_is_zero_exactly_where_the_crc_is_right(case) -> None:
+    """The decoder's CRC check (two bytes per table lookup) against the bitwise CRC-8."""
+    ids, data, right = case
+    for i, fix in enumerate(right):  # about half the frames carry their right CRC
+        if fix:
+            data[i, 7] = frame_crc8_ref(ids[i], bytes(data[i, :7]))
+    id16 = np.array([i & 0xFFFF for i in ids], dtype=np.uint16)
+    pairs = np.ascontiguousarray(data).view("<u2").reshape(len(ids), 4)
+    residue = frame_crc8_residue((id16, *(pairs[:, k] for k in range(4))))
+    expected = [
+        frame_crc8_ref(i, bytes(row[:7])) ^ int(row[7]) for i, row in zip(ids, data, strict=True)
+    ]
+    assert residue.dtype == np.uint8
+    assert residue.tolist() == expected

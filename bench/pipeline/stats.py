@@ -8,7 +8,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from bench.records.events import EventKind
-from bench.records.twins import STATS_ROWS
 from protocol.batch import DecodedBatch
 
 _PER_CHANNEL: dict[int, str] = {
@@ -89,19 +88,13 @@ class Stats:
 
     def count_frames(self, ids: np.ndarray) -> None:
         self.frames += len(ids)
-        if len(ids) <= STATS_ROWS:  # a live batch: cheaper without numpy's fixed costs
-            self.frames_by_id.update(ids.tolist())
-        else:
-            u, c = np.unique(ids, return_counts=True)
-            self.frames_by_id.update(dict(zip(u.tolist(), c.tolist(), strict=True)))
+        u, c = np.unique(ids, return_counts=True)
+        self.frames_by_id.update(dict(zip(u.tolist(), c.tolist(), strict=True)))
 
     def count_events(self, events: np.ndarray) -> None:
         if len(events) == 0:
             return
         kinds = events["kind"]
-        if len(events) <= STATS_ROWS:
-            self._count_events_scalar(kinds.tolist(), events["channel"].tolist(), events)
-            return
         per_kind = np.bincount(kinds).tolist()
         pairs = np.bincount(kinds.astype(np.intp) << 8 | events["channel"]).tolist()
 
@@ -121,37 +114,11 @@ class Stats:
         if count(per_kind, EventKind.SOCKET_OVERFLOW):
             self.socket_drops += int(events["value"][kinds == EventKind.SOCKET_OVERFLOW].sum())
 
-    def _count_events_scalar(
-        self, kinds: list[int], channels: list[int], events: np.ndarray
-    ) -> None:
-        """count_events for the few events of a live step, without numpy calls."""
-        self.events.update(kinds)
-        for i, kind in enumerate(kinds):
-            attr = _PER_CHANNEL.get(kind)
-            ch = channels[i]
-            if attr is not None and 1 <= ch <= 3:
-                cs = self.channels[ch - 1]
-                setattr(cs, attr, getattr(cs, attr) + 1)
-            attr = _TOTALS.get(kind)
-            if attr is not None:
-                setattr(self, attr, getattr(self, attr) + 1)
-            if kind == EventKind.SAMPLES_LOST:
-                self.samples_lost += int(events["value"][i])
-            elif kind == EventKind.SOCKET_OVERFLOW:
-                self.socket_drops += int(events["value"][i])
-
     def count_results(self, results: np.ndarray) -> None:
         n = len(results)
         if n == 0:
             return
         self.samples += n
-        if n <= STATS_ROWS:
-            self.valid += sum(results["valid"].tolist())
-            self.degraded += sum(results["degraded"].tolist())
-            for votes in results["votes"].tolist():
-                for k in range(3):
-                    self.vote_failures[k] += not votes[k]
-            return
         self.valid += int(np.count_nonzero(results["valid"]))
         self.degraded += int(np.count_nonzero(results["degraded"]))
         votes = results["votes"]
@@ -160,19 +127,6 @@ class Stats:
 
     def count_channel_frames(self, t: np.ndarray, dec: DecodedBatch) -> None:
         """Valid frames per ADC channel, and the receive times of the first and last."""
-        if len(dec) <= STATS_ROWS:
-            channels, outcomes = dec.channel.tolist(), dec.outcome.tolist()
-            good = [(ch, i) for i, ch in enumerate(channels) if ch and not outcomes[i]]
-            if not good:
-                return
-            times = t.tolist()
-            for ch, i in good:
-                cs = self.channels[ch - 1]
-                if cs.frames == 0:
-                    cs.first_t = times[i]
-                cs.last_t = times[i]
-                cs.frames += 1
-            return
         good = (dec.channel > 0) & (dec.outcome == 0)
         if not good.any():
             return

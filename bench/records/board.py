@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from bench.records.twins import DECODE_FRAMES
 from protocol.batch import DecodedBatch
 from protocol.layout import FrameKind, Outcome
 
@@ -35,8 +34,6 @@ NO_SPEED = np.zeros(0, dtype=SPEED_DTYPE)
 
 def _rows_of(dec: DecodedBatch, kind: int) -> np.ndarray | None:
     """Indices of the valid frames of ``kind``, None when there are none."""
-    if len(dec) <= DECODE_FRAMES and kind not in dec.kind.tolist():  # a live step: cheap check
-        return None
     idx = np.flatnonzero((dec.kind == kind) & (dec.outcome == _OK))
     return idx if len(idx) else None
 

@@ -10,8 +10,6 @@ from enum import IntEnum
 
 import numpy as np
 
-from bench.records.twins import EVENT_ROWS
-
 
 class EventKind(IntEnum):
     CRC_ERROR = 1  # channel = ADC channel or 0; value = frame id
@@ -141,10 +139,6 @@ def concat_events(parts: list[np.ndarray]) -> np.ndarray:
         return NO_EVENTS
     if len(parts) == 1:
         return parts[0]
-    if sum(len(p) for p in parts) <= EVENT_ROWS:  # a live step's few: sort Python tuples
-        rows = [row for p in parts for row in p.tolist()]
-        rows.sort(key=lambda r: (r[0] != r[0], r[0]))  # stable, NaN last, like argsort
-        return np.array(rows, dtype=EVENT_DTYPE)
     if all(_in_order(p["t"]) for p in parts):
         out = parts[0]
         for part in parts[1:]:

@@ -3,29 +3,21 @@
 Live steps are a few frames, replay steps 65 536. numpy's fixed cost per call (~1-5 us)
 dominates the first, so each stage below has a plain-Python twin with the same expressions
 in the same order, and takes it for a batch up to its threshold; the outputs are identical
-byte for byte either way (tests/test_batch_twins.py, test_assembly.py,
+byte for byte either way (tests/test_assembly.py,
 test_pipeline_batching.py, test_estimator_batching.py), so a threshold moves speed only.
 Each is about where the two paths cost the same for that stage.
 
-Here, in the lowest layer of the bench, because the row helpers (records/) use them too.
+Decode, the row helpers and the running counters have one path for any batch length.
 The estimator's twin (16 samples) is set beside it in bench.fusion.estimator (SCALAR_MAX).
 """
 
 from __future__ import annotations
 
-from protocol.batch import SCALAR_MAX as DECODE_FRAMES
-
 __all__ = [
     "ASSEMBLY_FRAMES",
-    "DECODE_FRAMES",
-    "EVENT_ROWS",
     "FUSION_SAMPLES",
     "GAP_EVENT_SAMPLES",
-    "STATS_ROWS",
 ]
-
-# DECODE_FRAMES: frames decoded by protocol.batch's scalar twin (defined there: protocol/
-# does not import the bench); records/board.py uses it for the status and speed rows too.
 
 ASSEMBLY_FRAMES = 64
 """Frames the assembler joins into samples in plain Python (a live step, or the burst after
@@ -37,9 +29,3 @@ GAP_EVENT_SAMPLES = 16
 FUSION_SAMPLES = 16
 """Samples the pipeline fuses with the scalar twin (reference method and result rows; a live
 step has one or two)."""
-
-STATS_ROWS = DECODE_FRAMES
-"""Frames, events or rows the running counters count in plain Python (a live step)."""
-
-EVENT_ROWS = 16
-"""Events ordered in plain Python when steps' events are joined."""
