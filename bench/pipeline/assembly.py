@@ -2,11 +2,9 @@
 
 One algorithm serves live runs (batches of a few frames) and replay (batches of a
 million): it carries its state across batches, and the outcome does not depend on how the
-stream is cut into batches (tests prove it). It has two twins: a vectorised path for
-batches longer than ASSEMBLY_FRAMES frames (bench.records.twins) and a plain-Python one for
-the few frames of a live step, where numpy's fixed cost per call would be most of the work.
-The state between batches is small Python values (at most WINDOW open samples), so either
-path picks it up.
+stream is cut into batches (tests prove it). One numpy path serves a live step of one
+frame and a log's batch of 65 536. The state between batches is small Python values (at
+most WINDOW open samples).
 
 The rules, all driven by frame contents and order (never by wall-clock time), so a live
 run and the replay of its log decide alike:
@@ -36,19 +34,16 @@ import numpy as np
 
 from bench.pipeline.timeline import (
     HALF_CW,
-    HALF_TS,
     RX_TOL_TICKS,
     WINDOW,
     Note,
     Timeline,
-    board_step,
     vector_steps,
 )
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE
-from bench.records.twins import ASSEMBLY_FRAMES, GAP_EVENT_SAMPLES
 from protocol.batch import DecodedBatch
-from protocol.layout import COUNTER_WRAP, STATUS_FAULT_MASK, TICK_S, TS_WRAP, FrameKind, Outcome
+from protocol.layout import STATUS_FAULT_MASK, TICK_S, FrameKind, Outcome
 
 _NONE = np.iinfo(np.int64).min // 4
 _ADC, _STATUS, _OK = int(FrameKind.ADC), int(FrameKind.STATUS), int(Outcome.OK)
@@ -100,11 +95,6 @@ def _notes_array(notes: list[Note]) -> np.ndarray:
     return np.array(notes, dtype=EVENT_DTYPE) if notes else NO_EVENTS
 
 
-def _event_array(kind: int, rows: list[tuple[Any, ...]]) -> np.ndarray:
-    """Events of one kind from (t, channel, n, value) tuples, as make_events builds them."""
-    return np.array([(t, kind, ch, n, v) for t, ch, n, v in rows], dtype=EVENT_DTYPE)
-
-
 def _isin(a: np.ndarray, b: list[int]) -> np.ndarray:
     """np.isin for the few keys of the open samples: only keys up to max(b) can match."""
     hit = np.zeros(len(a), dtype=bool)
@@ -150,23 +140,14 @@ class Assembler:
         self._recent: list[int] = []  # n of complete samples emitted early, within the window
 
     # -- main entry ----------------------------------------------------------------------
-    def push(
-        self, t: np.ndarray, dec: DecodedBatch, seq0: int = 0
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
-
-        Returns (emitted samples, events)."""
-        if len(dec) <= ASSEMBLY_FRAMES:
-            return self._push_scalar(t, dec, seq0)
-        return self._push_vector(t, dec, seq0)
-
     def finish(self) -> tuple[np.ndarray, np.ndarray]:
         """End of stream: emit every open sample as it is."""
         rows, self._open = self._open, []
         if rows:
             self.last_emitted = rows[-1][0]
         notes = _notes_array(self.timeline.finish())
-        return _rows_to_array(rows), concat_events([notes, self._gap_events_rows(rows)])
+        out = _rows_to_array(rows)
+        return out, concat_events([notes, self._gap_events(out)])
 
     # -- shared --------------------------------------------------------------------------
     def _accepted_keys(self) -> list[int]:
@@ -204,116 +185,7 @@ class Assembler:
         self._open = rows[k:]
         return rows[:k]
 
-    def _gap_events_rows(self, out: list[Row]) -> np.ndarray:
-        """GAP and SAMPLES_LOST events of emitted samples (Python rows)."""
-        if not out:
-            return NO_EVENTS
-        gaps = [
-            (r[2], k + 1, r[0], 0) for r in out if not all(r[6]) for k in range(3) if not r[6][k]
-        ]
-        lost = []
-        prev = out[0][0] - 1 if self._last_row_n is None else self._last_row_n
-        for r in out:
-            if r[0] - prev > 1:
-                lost.append((r[2], 0, prev + 1, r[0] - prev - 1))
-            prev = r[0]
-        self._last_row_n = prev
-        if not gaps and not lost:
-            return NO_EVENTS
-        return concat_events([_event_array(_GAP, gaps), _event_array(_SAMPLES_LOST, lost)])
-
-    # -- scalar twin (a live batch of a few frames) ----------------------------------------
-    def _push_scalar(
-        self, t: np.ndarray, dec: DecodedBatch, seq0: int
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """One frame at a time in Python ints and floats: the same arithmetic, decisions
-        and event order as :meth:`_push_vector` on the same batch."""
-        outcome = dec.outcome.tolist()
-        errors = self._error_events(t, dec) if any(outcome) else NO_EVENTS
-        kind = dec.kind.tolist()
-        if _ADC not in kind and _STATUS not in kind:
-            return NO_SAMPLES, errors
-        rates = dec.sample_rate.tolist()
-        tt, counter, stamp = t.tolist(), dec.counter.tolist(), dec.timestamp.tolist()
-        channel, code, status = dec.channel.tolist(), dec.code.tolist(), dec.status.tolist()
-        period, known = self.period_ticks, self.rate_known
-        timeline = self.timeline
-        chain, mx = timeline.chain, self.max_n
-        taken: set[int] | None = None
-        rows = {r[0]: r for r in self._open}
-        jumps: list[tuple[Any, ...]] = []
-        late: list[tuple[Any, ...]] = []
-        dups: list[tuple[Any, ...]] = []
-        flagged: list[tuple[Any, ...]] = []
-        any_adc = False
-        for i, k in enumerate(kind):
-            if outcome[i] != _OK:
-                continue
-            if k == _STATUS:
-                if rates[i] > 0:
-                    period, known = 1.0 / (rates[i] * TICK_S), True
-                    self.period_ticks, self.rate_known = period, True
-                continue
-            if k != _ADC:
-                continue
-            any_adc = True
-            ti, ts, c, ch = tt[i], stamp[i], counter[i], channel[i]
-            if chain is None:
-                chain = (ti, ts, ts, c, c)
-            placed = None
-            if timeline.pending is None:  # the fast check (the vector path's, per frame)
-                d = (ts - chain[1] + HALF_TS) % TS_WRAP - HALF_TS
-                if abs((ti - chain[0]) / TICK_S - d) <= RX_TOL_TICKS:
-                    step = board_step(d, c, chain[3], period, known)
-                    if -WINDOW <= step <= WINDOW or (c - chain[3] - step) % COUNTER_WRAP == 0:
-                        n, big_t = chain[4] + step, chain[2] + d
-                        chain = (ti, ts, big_t, c, n)
-                        placed = True
-            if placed is None:
-                timeline.chain = chain
-                where = timeline.slow(ti, ts, c, ch, period, known, mx)
-                chain = timeline.chain
-                if where is None:
-                    continue
-                n, big_t, ti = where
-            mismatch = (c - n + _HALF_CW) % COUNTER_WRAP - _HALF_CW
-            if mismatch and known:
-                jumps.append((ti, ch, n, mismatch))
-            if mx >= n + WINDOW:
-                late.append((ti, ch, n, 0))
-                continue
-            mx = max(mx, n)
-            if taken is None:
-                taken = set(self._accepted_keys())
-            key = n * 4 + ch
-            if key in taken:
-                dups.append((ti, ch, n, 0))
-                continue
-            taken.add(key)
-            st = status[i]
-            if st & STATUS_FAULT_MASK:
-                flagged.append((ti, ch, n, st))
-            row = rows.get(n)
-            if row is None:
-                row = rows[n] = [n, big_t, 0.0, 0, [0, 0, 0], [0, 0, 0], [False, False, False]]
-            row[2], row[3] = ti, seq0 + i
-            row[4][ch - 1], row[5][ch - 1], row[6][ch - 1] = code[i], st, True
-        if not any_adc:
-            return NO_SAMPLES, errors
-        timeline.chain, self.max_n = chain, mx
-        notes = timeline.take_notes() if timeline.notes else None
-        out = self._emit_rows(sorted(rows.values()) if len(rows) > 1 else list(rows.values()))
-        gaps = self._gap_events_rows(out)
-        if not (jumps or late or dups or flagged or notes) and not len(gaps):
-            return _rows_to_array(out), errors
-        parts = [
-            _event_array(kind, rows)
-            for kind, rows in ((_COUNTER_JUMP, jumps), (_LATE, late), (_DUPLICATE, dups))
-        ]
-        parts.append(_event_array(_STATUS_FLAG, flagged))
-        return _rows_to_array(out), concat_events([errors, _notes_array(notes or []), *parts, gaps])
-
-    # -- vectorised path (replay, bursts) --------------------------------------------------
+    # -- placement, membership, merge and emission, for any batch length -----------------
     def _periods(
         self, dec: DecodedBatch, adc_idx: np.ndarray
     ) -> tuple[float | np.ndarray, bool | np.ndarray]:
@@ -337,9 +209,12 @@ class Assembler:
         known[has] = True
         return period, known
 
-    def _push_vector(
-        self, t: np.ndarray, dec: DecodedBatch, seq0: int
+    def push(
+        self, t: np.ndarray, dec: DecodedBatch, seq0: int = 0
     ) -> tuple[np.ndarray, np.ndarray]:
+        """Feed frames (receive times + decoded batch; ``seq0`` = arrival index of the first).
+
+        Returns (emitted samples, events)."""
         events = [self._error_events(t, dec)]
         adc: np.ndarray = np.flatnonzero((dec.kind == _ADC) & (dec.outcome == _OK))
         period, known = self._periods(dec, adc)
@@ -403,7 +278,7 @@ class Assembler:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]:
         """(n, T, kept or None for all, receive times for the samples) of each ADC frame.
 
-        The fast check of the scalar path, on every frame against its predecessor at
+        The fast check (a frame against its predecessor), on every frame at
         once; the few frames it does not pass (and the frame after a suspect one) go
         through Timeline.slow one by one, the runs between them by cumulative sums."""
         timeline = self.timeline
@@ -556,8 +431,9 @@ class Assembler:
         return table[: i + len(done)]
 
     def _gap_events(self, out: np.ndarray) -> np.ndarray:
-        if len(out) <= GAP_EVENT_SAMPLES:
-            return self._gap_events_rows(_array_to_rows(out))
+        """GAP and SAMPLES_LOST events of emitted samples."""
+        if len(out) == 0:
+            return NO_EVENTS
         parts = []
         present = out["present"]
         if not present.all():

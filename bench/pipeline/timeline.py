@@ -25,8 +25,7 @@ stream (up to host jitter and clock drift):
   If it cannot tell, the nearest within GUESS_TOLERANCE_S is taken, a WRAP_GUESS notice.
   A clock step of almost exactly k * 6.5536 s stays indistinguishable from a gap.
 
-Both assembly twins call :meth:`Timeline.slow` for every frame the fast check does not
-pass, so their decisions and events are the same by construction.
+The assembler calls :meth:`Timeline.slow` for every frame the fast check does not pass.
 """
 
 from __future__ import annotations
@@ -87,8 +86,8 @@ def ms(seconds: float) -> int:
 
 
 def board_step(d: int, c: int, c0: int, period: float, known: bool) -> int:
-    """Sample-index step for a board-time step of ``d`` ticks (scalar twin of the vector
-    rule): board time alone once the rate is known, else the counter corrects it."""
+    """Sample-index step for a board-time step of ``d`` ticks (one frame of
+    :func:`vector_steps`): board time alone once the rate is known, else the counter corrects it."""
     est = round(d / period)  # round half even, like np.rint
     if known:
         return est
