@@ -12,7 +12,6 @@ are (N, 3) views of those arrays.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -135,52 +134,3 @@ def fuse(
     valid = pattern != 0
     gradient[~valid] = np.nan
     return ReferenceResult(slopes.T, votes.T, w.T, gradient, valid)
-
-
-# -- the scalar twin (a live step's sample or two) --------------------------------------------
-_WEIGHT_ROWS = _WEIGHTS.T.tolist()  # [pattern] -> [w12, w23, w13]
-
-
-@lru_cache(maxsize=16)
-def _pair_constant_lists(
-    angles_rad: tuple[float, ...], g: float
-) -> tuple[list[float], list[float], list[float]]:
-    """:func:`_pair_constants` as Python floats, converted once, not per live step."""
-    cos_i, cos_j, denom = (c.ravel().tolist() for c in _pair_constants(angles_rad, g))
-    return cos_i, cos_j, denom
-
-
-def pair_gradients_few(
-    acc: list[list[float]], angles_rad: tuple[float, ...], g: float
-) -> list[list[float]]:
-    """:func:`_slopes` for a few samples given as Python rows (NaN = unusable): the same
-    products, difference, quotient and clamp in Python floats, then numpy's own arccos and
-    tan over all of them at once (libm's may differ from numpy's in the last bit)."""
-    cos_i, cos_j, denom = _pair_constant_lists(angles_rad, g)
-    xs = []
-    for a in acc:
-        for p, (i, j) in enumerate(PAIRS):
-            x = (a[i] * cos_j[p] - a[j] * cos_i[p]) / denom[p]
-            xs.append(x if x != x else (-1.0 if x < -1.0 else (1.0 if x > 1.0 else x)))
-    out = np.arccos(np.array(xs, dtype=np.float64))
-    np.tan(out, out=out)
-    flat = [v if v == v else math.nan for v in np.multiply(1000.0, out, out=out).tolist()]
-    return [flat[k : k + 3] for k in range(0, len(flat), 3)]
-
-
-def vote_and_weigh(
-    slopes: list[float], tolerance_permil: float
-) -> tuple[list[bool], list[float], float, bool]:
-    """Votes, Table 1 weights, gradient and validity of one sample's slope values: the
-    scalar twin of the rest of :func:`fuse` (same operations, same order)."""
-    s0, s1, s2 = slopes
-    votes = [abs(s0 - s1) <= tolerance_permil, abs(s1 - s2) <= tolerance_permil,
-             abs(s0 - s2) <= tolerance_permil]  # fmt: skip
-    pattern = votes[0] + 2 * votes[1] + 4 * votes[2]
-    w = _WEIGHT_ROWS[pattern]
-    t0, t1, t2 = (w[k] * slopes[k] if w[k] != 0.0 else 0.0 for k in (0, 1, 2))
-    gradient = t0 + t1
-    gradient += t2
-    if not pattern:
-        gradient = math.nan
-    return votes, w, gradient, pattern != 0

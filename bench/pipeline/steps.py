@@ -11,16 +11,15 @@ with acquisition and logging, and its fixed cost per step is the live latency.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from bench.config import Config
 from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
-from bench.fusion.reference import fuse, pair_gradients_few, vote_and_weigh
+from bench.fusion.reference import fuse
 from bench.pipeline.assembly import Assembler
 from bench.pipeline.stats import Stats
 from bench.records.arrays import concat_records
@@ -28,11 +27,9 @@ from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
-from bench.records.twins import FUSION_SAMPLES
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
 from protocol.frames import empty_frames
-from protocol.layout import STATUS_FAULT_MASK
 
 _NOTICE_KINDS = {
     "parse_error": EventKind.PARSE_ERROR,
@@ -145,20 +142,6 @@ class EstimatorLike(Protocol):
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]: ...
 
-    def buffer_speeds(self, speeds: np.ndarray) -> None: ...
-
-    def push_rows(
-        self,
-        ticks_l: list[int],
-        t_l: list[float],
-        seq_l: list[int],
-        n_l: list[int],
-        code_l: list[list[int]],
-        present_l: list[list[bool]],
-        acc_l: list[list[float]],
-        usable_l: list[list[bool]],
-    ) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]: ...
-
 
 class Pipeline:
     def __init__(self, config: Config, *, estimator: EstimatorLike | None = None) -> None:
@@ -172,8 +155,6 @@ class Pipeline:
         self._angles = np.asarray(config.angles_rad, dtype=np.float64)
         self._scale = np.array([c.scale for c in config.channels], dtype=np.float64)
         self._offset = np.array([c.offset for c in config.channels], dtype=np.float64)
-        self._scale_list, self._offset_list = self._scale.tolist(), self._offset.tolist()
-        self._angles_tuple = tuple(self._angles.tolist())
         self._last_fail_mask = 0
         self.last_status: np.void | None = None
         self.last_speed: np.void | None = None
@@ -235,8 +216,6 @@ class Pipeline:
             return _NO_RESULTS, est_events
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
-        if len(samples) <= FUSION_SAMPLES:
-            return self._compute_scalar(samples, speed)
         res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
         _FROM_SAMPLE.copy(res, samples)
         res["time_s"] = (samples["ticks"] - self.first_ticks) / 10000.0
@@ -275,67 +254,6 @@ class Pipeline:
                 make_events(EventKind.INVALID, t[inv], 0, n[inv]),
             ]
         )
-
-    def _compute_scalar(
-        self, samples: np.ndarray, speed: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Twin of :meth:`compute` for the sample or two of a live step: the same float64
-        operations in the same order on Python floats (arccos and tan by numpy's own ufuncs,
-        whose results may differ from libm's), each result row built as one tuple."""
-        ticks_l, t_l = samples["ticks"].tolist(), samples["t"].tolist()
-        n_l, seq_l = samples["n"].tolist(), samples["seq"].tolist()
-        code_l, status_l = samples["code"].tolist(), samples["status"].tolist()
-        present_l = samples["present"].tolist()
-        off, sc = self._offset_list, self._scale_list
-        nan = math.nan
-        acc_l, ok_l, use_l = [], [], []
-        for code, st, pr in zip(code_l, status_l, present_l, strict=True):
-            acc = [(float(code[k]) - off[k]) * sc[k] for k in (0, 1, 2)]
-            ok = [pr[k] and not st[k] & STATUS_FAULT_MASK for k in (0, 1, 2)]
-            acc_l.append(acc)
-            ok_l.append(ok)
-            use_l.append([acc[k] if ok[k] else nan for k in (0, 1, 2)])
-        slopes_l = pair_gradients_few(use_l, self._angles_tuple, self.config.g)
-        ref = [vote_and_weigh(sl, self.tolerance_permil) for sl in slopes_l]
-        self.estimator.buffer_speeds(speed)
-        est_rows, est_events = self.estimator.push_rows(
-            ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, ok_l
-        )
-        first = self.first_ticks if self.first_ticks is not None else 0
-        rows = [
-            (
-                n_l[k], seq_l[k], ticks_l[k], t_l[k], (ticks_l[k] - first) / 10000.0,
-                code_l[k], status_l[k], present_l[k], use_l[k], slopes_l[k], *ref[k],
-                *est_rows[k],
-            )
-            for k in range(len(n_l))
-        ]  # fmt: skip
-        res = np.array(rows, dtype=RESULT_DTYPE)
-        vote_rows = self._vote_event_rows(t_l, n_l, [r[0] for r in ref])
-        events = [np.array(vote_rows, dtype=EVENT_DTYPE) if vote_rows else NO_EVENTS]
-        events.append(np.array(est_events, dtype=EVENT_DTYPE) if est_events else NO_EVENTS)
-        return res, concat_events(events)
-
-    def _vote_event_rows(
-        self, tl: list[float], nl: list[int], votes: list[list[bool]]
-    ) -> list[tuple[Any, ...]]:
-        """Twin of :meth:`_vote_events` for the few samples of a live step (EVENT_DTYPE rows)."""
-        prev = self._last_fail_mask
-        masks, change = [], []
-        for i, (v1, v2, v3) in enumerate(votes):
-            m = (not v1) + 2 * (not v2) + 4 * (not v3)
-            if m != prev and m:
-                change.append(i)
-            masks.append(m)
-            prev = m
-        self._last_fail_mask = prev
-        if not change:
-            return []
-        rows = [(tl[i], _VOTE_FAIL, 0, nl[i], masks[i]) for i in change]
-        invalid = [(tl[i], _INVALID, 0, nl[i], 0) for i in change if masks[i] == 7]
-        if invalid:  # as concat_events orders two parts: stable by time, NaN last
-            rows = sorted(rows + invalid, key=lambda r: (r[0] != r[0], r[0]))
-        return rows
 
     def _state_events(self, status: np.ndarray) -> np.ndarray:
         prev_state = -1 if self.last_status is None else int(self.last_status["state"])

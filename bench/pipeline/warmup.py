@@ -19,7 +19,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -146,19 +145,3 @@ class PendingEstimator:
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         return np.repeat(self._row, len(samples)), self._no_events
-
-    def buffer_speeds(self, speeds: np.ndarray) -> None:
-        pass
-
-    def push_rows(
-        self,
-        ticks_l: list[int],
-        t_l: list[float],
-        seq_l: list[int],
-        n_l: list[int],
-        code_l: list[list[int]],
-        present_l: list[list[bool]],
-        acc_l: list[list[float]],
-        usable_l: list[list[bool]],
-    ) -> tuple[list[tuple[Any, ...]], list[tuple[Any, ...]]]:
-        return [self._tuple] * len(ticks_l), []
