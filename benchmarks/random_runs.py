@@ -53,6 +53,7 @@ STREAMS = {
     "board": 5,
     "odometer": 6,
     "faults": 7,
+    "wheel": 8,
 }
 
 ODOMETER_CLASSES = ("usable", "poor", "absent")
@@ -331,7 +332,8 @@ def _odometer(seed: int, duration: float) -> tuple[dict[str, Any], str, list[dic
     +/-200 ppm, its own start. A poor one has, each with p 0.6 (at least one): wheel slide
     on braking (depth 0.2..1.5 m/s, WSP cycle 0.8..1.6 s, from 0.2..0.4 m/s^2, jitter
     0..0.5) and/or slip on traction (depth 0.1..0.8 m/s, cycle 0.6..1.4 s) in a low-adhesion
-    window of 30..100 % of the run; and/or 1..3 SPEED_REF dropouts of 2..20 s."""
+    window of 30..100 % of the run; and/or 1..3 SPEED_REF dropouts of 2..20 s. Every wheel's
+    diameter error e uniform in +/-3 % (SPEED_REF = wheel speed * (1 + e))."""
     rng = _rng(seed, "odometer")
     u = rng.random()
     quality = "absent" if u < 0.06 else ("poor" if u < 0.36 else "usable")
@@ -378,6 +380,9 @@ def _odometer(seed: int, duration: float) -> tuple[dict[str, Any], str, list[dic
                         "end_s": _r(min(start + length, duration), 2),
                     }
                 )
+    # every car's wheel is worn or configured a little wrong (issue 25: e up to +/- 3 %);
+    # its own stream, so the draws above are those of the runs before it existed
+    odo["wheel_diameter_error"] = _r(_rng(seed, "wheel").uniform(-0.03, 0.03), 4)
     return odo, quality, faults
 
 
