@@ -139,7 +139,7 @@ def log_info(path: str | Path, *, verify: bool = False, max_spans: int = 20) -> 
             "invalid": _span_rows(results, ~results["valid"], max_spans)
             if len(results)
             else {"count": 0, "samples": 0, "spans": []},
-            "topics": {ch.topic: counts.get(cid, 0) for cid, ch in sorted(lg.channels.items())},
+            "topics": lg.per_topic(counts),
             "metadata": lg.metadata_dict(),
             "attachments": [
                 {"name": a.name, "media_type": a.media_type, "size": a.size} for a in lg.attachments

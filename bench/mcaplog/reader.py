@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import json
 import logging
-import mmap
+import os
 import struct
 import zlib
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +34,7 @@ from bench.mcaplog.decoders import (
     link_error_from_json,
     notice_from_json,
 )
+from bench.mcaplog.filebytes import FileBytes
 from bench.mcaplog.recovery import (
     SummaryAhead,
     definitions_from_chunks,
@@ -70,6 +71,7 @@ from bench.mcaplog.structure import (
     parse_schema,
     read_map,
     read_str,
+    unpack_at,
     walk_chunk,
 )
 from devices.base import SourceBatch, SourceNotice
@@ -94,10 +96,8 @@ class McapLog:
             self._fh = open(self.path, "rb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
             raise McapReadError(f"{self.path}: cannot open: {exc.strerror or exc}") from None
-        self.size = self.path.stat().st_size
-        self._mm: mmap.mmap | bytes = (
-            mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_READ) if self.size else b""
-        )
+        self.size = os.fstat(self._fh.fileno()).st_size
+        self._mm = FileBytes(self._fh.fileno(), self.size, self.path)  # never a mapping: SIGBUS
         self.library = ""
         self.profile = ""
         self.schemas: dict[int, SchemaInfo] = {}
@@ -131,8 +131,6 @@ class McapLog:
 
     # -- lifecycle -------------------------------------------------------------------------
     def close(self) -> None:
-        if isinstance(self._mm, mmap.mmap):
-            self._mm.close()
         self._fh.close()
 
     def __enter__(self) -> McapLog:
@@ -152,10 +150,28 @@ class McapLog:
         return self.data_end is None
 
     def channel_id(self, topic: str) -> int | None:
-        for ch in self.channels.values():
-            if ch.topic == topic:
-                return ch.id
-        return None
+        """The topic's channel (the lowest id when several channels share the topic, as the
+        spec allows: a chunk's offsets give the others' messages under this one)."""
+        ids = self.channel_ids(topic)
+        return min(ids) if ids else None
+
+    def channel_ids(self, topic: str) -> set[int]:
+        """Every channel of ``topic``: all of them are read."""
+        return {ch.id for ch in self.channels.values() if ch.topic == topic}
+
+    def _aliases(self) -> dict[int, int]:
+        """Channel id -> the id its topic is read under (:meth:`channel_id`), for the
+        channels that share a topic with a lower id."""
+        first: dict[str, int] = {}
+        for cid in sorted(self.channels):
+            first.setdefault(self.channels[cid].topic, cid)
+        return {c: first[ch.topic] for c, ch in self.channels.items() if first[ch.topic] != c}
+
+    def _with_aliases(self, channels: set[int] | None) -> set[int] | None:
+        if channels is None:
+            return None
+        aliases = self._aliases()
+        return channels | {c for c, canon in aliases.items() if canon in channels}
 
     def foreign_topics(self, ours: set[str] | None = None) -> list[str]:
         """The file's topics when it has some but none of ``ours`` (default: the topics a
@@ -208,7 +224,7 @@ class McapLog:
             if pos + 9 > size:
                 reason = "file ends inside a record header"
                 break
-            op, length = u_bq(mm, pos)
+            op, length = u_bq(mm[pos : pos + 9])
             end = pos + 9 + length
             bad = ""
             if end > size:
@@ -256,8 +272,8 @@ class McapLog:
         if cut_op == OP_MESSAGE_INDEX:  # the last chunk is whole: only its index is cut
             est = " (only the last chunk's message index: no messages lost)"
         else:
-            fid = self.channel_id(S.FRAME_TOPIC)
-            est = truncation_loss(mm, size, self.scan_end, self.chunks, fid)
+            fids = self.channel_ids(S.FRAME_TOPIC)
+            est = truncation_loss(mm, size, self.scan_end, self.chunks, fids)
         self.truncation = (
             f"{self.path}: unfinished or truncated MCAP file ({reason}); recovered "
             f"{len(self.chunks)} complete chunk(s), lost about {self.lost_bytes} bytes at the "
@@ -271,6 +287,8 @@ class McapLog:
         """Take in one data-section record; returns the chunk whose MessageIndex records
         may follow (the new one after a Chunk, else ``last_chunk``)."""
         mm, body = self._mm, pos + 9
+        if op in (OP_HEADER, OP_SCHEMA, OP_CHANNEL, OP_METADATA, OP_DATA_END):
+            mm, body = mm[pos:end], 9  # one read for the record, not one per field
         if op == OP_HEADER:
             self.profile, p = read_str(mm, body)
             self.library, _ = read_str(mm, p)
@@ -286,7 +304,7 @@ class McapLog:
             return info
         elif op == OP_MESSAGE_INDEX:
             if self.chunks and not self.chunks[-1].loose:
-                (cid, rec_len) = struct.unpack_from("<HI", mm, body)
+                (cid, rec_len) = unpack_at("<HI", mm, body)
                 self.chunks[-1].index[cid] = (body + 6, min(rec_len, end - body - 6))
         elif op == OP_METADATA:
             name, p = read_str(mm, body)
@@ -314,7 +332,7 @@ class McapLog:
         if foot < self.scan_end or bytes(self._mm[self.size - 8 :]) != MAGIC:
             self.warnings.append(f"{self.path}: no footer after the data section (summary lost)")
             return
-        op, length = struct.unpack_from("<BQ", self._mm, foot)
+        op, length = unpack_at("<BQ", self._mm, foot)
         if op != OP_FOOTER or length != 20:
             self.warnings.append(f"{self.path}: bad footer record (summary lost)")
             return
@@ -327,8 +345,8 @@ class McapLog:
         """Damage the scan stepped over, each note with the frames it cost."""
         if not self.damage:
             return
-        fid = self.channel_id(S.FRAME_TOPIC)
-        n = frames_lost_to_damage(self.chunks, fid, self.statistics, self.decompress, unindexed)
+        fids = self.channel_ids(S.FRAME_TOPIC)
+        n = frames_lost_to_damage(self.chunks, fids, self.statistics, self.decompress, unindexed)
         lost = ""
         if n is not None:
             lost = f"; {n} frames lost" if n else "; no frames lost"
@@ -376,14 +394,27 @@ class McapLog:
     def offsets(
         self, info: ChunkInfo, buf: bytes, channels: set[int] | None = None
     ) -> dict[int, np.ndarray]:
-        """Offsets of each channel's messages in the chunk, ascending (= write order)."""
+        """Offsets of each channel's messages in the chunk, ascending (= write order); the
+        messages of channels that share a topic are all under the topic's
+        :meth:`channel_id`."""
+        aliases = self._aliases()
+        found = self._offsets(info, buf, self._with_aliases(channels))
+        for cid in [c for c in found if c in aliases]:
+            canon, offs = aliases[cid], found.pop(cid)
+            both = np.concatenate([found[canon], offs]) if canon in found else offs
+            found[canon] = np.sort(both)
+        return found
+
+    def _offsets(
+        self, info: ChunkInfo, buf: bytes, channels: set[int] | None
+    ) -> dict[int, np.ndarray]:
         out: dict[int, np.ndarray] = {}
         if info.indexed:
             ok = True
             for cid, (off, nbytes) in info.index.items():
                 if channels is not None and cid not in channels:
                     continue
-                entries = np.frombuffer(self._mm, dtype="<u8", count=nbytes // 8, offset=off)
+                entries = np.frombuffer(self._mm[off : off + nbytes // 8 * 8], dtype="<u8")
                 offs = entries[1::2].astype(np.int64)
                 if len(offs) and (offs.max() + S.MESSAGE_HEADER_SIZE > len(buf) or offs.min() < 0):
                     ok = False
@@ -401,8 +432,9 @@ class McapLog:
         A chunk whose MessageIndex names none of them is skipped unread (the writer puts
         the replay's topics in chunks of their own); one without an intact index is read.
         """
+        every = self._with_aliases(channels)
         for info in self.chunks:
-            if channels is not None and info.indexed and channels.isdisjoint(info.index):
+            if every is not None and info.indexed and every.isdisjoint(info.index):
                 continue
             buf = self.decompress(info)
             if buf is not None:
@@ -426,7 +458,7 @@ class McapLog:
         recs = gather(content.buf, offs, S.FRAME_RECORD_DTYPE)  # read-only if contiguous
         p = recs["payload"]
         good = (recs["opcode"] == S.MESSAGE_OPCODE) & (recs["length"] == S.FRAME_RECORD_LENGTH)
-        good &= recs["channel_id"] == fid
+        good &= np.isin(recs["channel_id"], sorted(self.channel_ids(S.FRAME_TOPIC)))
         for name, value in S.FRAME_PB_CONST.items():
             good &= p[name] == value
         if not good.all():
@@ -571,7 +603,14 @@ class McapLog:
                 if buf is not None:
                     for cid, offs in walk_chunk(buf, None).items():
                         counts[cid] += len(offs)
-        return {ch.topic: counts.get(cid, 0) for cid, ch in sorted(self.channels.items())}
+        return self.per_topic(counts)
+
+    def per_topic(self, counts: Mapping[int, int]) -> dict[str, int]:
+        """Messages per channel as messages per topic (channels sharing a topic together)."""
+        by_topic: Counter[str] = Counter()
+        for cid, ch in sorted(self.channels.items()):
+            by_topic[ch.topic] += counts.get(cid, 0)
+        return dict(by_topic)
 
     def verify(self) -> list[str]:
         """Check every CRC in the file (data section, summary, chunks, attachments);
@@ -591,7 +630,7 @@ class McapLog:
                 problems.append(f"chunk at byte {info.offset}: {self.bad_chunks[-1][1]}")
         for att in self.attachments:
             end = att.record_offset + att.record_length
-            (crc,) = struct.unpack_from("<I", self._mm, end - 4)
+            (crc,) = unpack_at("<I", self._mm, end - 4)
             if crc and zlib.crc32(self._mm[att.record_offset + 9 : end - 4]) != crc:
                 problems.append(f"attachment {att.name}: CRC mismatch")
         problems += [w for w in self.warnings if "summary" in w and "CRC" in w]

@@ -2,7 +2,7 @@
 ahead of the data section, stepping over damage with its chunk index, definitions that
 live only inside chunks, and what the damage or the truncation cost in frames.
 
-Pure functions over the mapped file and what :class:`bench.mcaplog.reader.McapLog` has
+Pure functions over the file's bytes and what :class:`bench.mcaplog.reader.McapLog` has
 scanned so far; they never raise for malformed input (that becomes a warning)."""
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ from bench.mcaplog.structure import (
     parse_chunk,
     parse_schema,
     read_statistics,
+    unpack_at,
     walk_chunk,
     walk_records,
 )
@@ -57,39 +58,40 @@ def peek_summary(mm: Any, size: int, path: object) -> SummaryAhead:
     foot = size - 8 - FOOTER_LEN
     if foot < len(MAGIC) or bytes(mm[size - 8 :]) != MAGIC:
         return out
-    op, length, sstart, soff, crc = struct.unpack_from("<BQQQI", mm, foot)
+    op, length, sstart, soff, crc = unpack_at("<BQQQI", mm, foot)
     if op != OP_FOOTER or length != 20 or not sstart:
         return out
     if not len(MAGIC) <= sstart <= foot:
         out.problem = "footer points outside the file (summary lost)"
         return out
-    if crc and zlib.crc32(mm[sstart : foot + 1 + 8 + 16]) != crc:
+    summary = bytes(mm[sstart : foot + 1 + 8 + 16])  # read once: one read, not one per field
+    if crc and zlib.crc32(summary) != crc:
         out.problem = "summary CRC mismatch (summary ignored)"
         return out
-    end = soff if sstart <= soff <= foot else foot
-    pos = sstart
+    end = (soff if sstart <= soff <= foot else foot) - sstart
+    pos = 0
     try:
         while pos + 9 <= end:
-            rop, rlen = struct.unpack_from("<BQ", mm, pos)
+            rop, rlen = struct.unpack_from("<BQ", summary, pos)
             rend = pos + 9 + rlen
             if rend > end:
-                raise ValueError(f"record at byte {pos} overruns the summary")
+                raise ValueError(f"record at byte {sstart + pos} overruns the summary")
             if rop == OP_STATISTICS:
                 try:
-                    out.statistics = read_statistics(mm, pos + 9, rend)
+                    out.statistics = read_statistics(summary, pos + 9, rend)
                 except (struct.error, ValueError) as exc:
                     out.warnings.append(
                         f"{path}: malformed Statistics record in the summary "
                         f"({exc}): statistics ignored"
                     )
             elif rop == OP_SCHEMA:
-                schema = parse_schema(mm, pos + 9)
+                schema = parse_schema(summary, pos + 9)
                 out.schemas[schema.id] = schema
             elif rop == OP_CHANNEL:
-                channel = parse_channel(mm, pos + 9)
+                channel = parse_channel(summary, pos + 9)
                 out.channels[channel.id] = channel
             elif rop == OP_CHUNK_INDEX:
-                start, clen = struct.unpack_from("<QQ", mm, pos + 9 + 16)
+                start, clen = struct.unpack_from("<QQ", summary, pos + 9 + 16)
                 if len(MAGIC) <= start and start + clen <= sstart and clen > 9:
                     out.chunk_lengths[start] = clen
             pos = rend
@@ -172,28 +174,30 @@ def definitions_from_chunks(
 
 def frames_lost_to_damage(
     chunks: list[ChunkInfo],
-    frame_channel: int | None,
+    frame_channels: set[int],
     statistics: dict[str, Any] | None,
     decompress: Decompress,
     unindexed: dict[int, bytes | None],
 ) -> int | None:
     """Frames the damage cost: the summary's statistics against what the readable chunks
     hold (their indexes, or a walk of an unindexed chunk); None when not countable."""
-    fid = frame_channel
-    if fid is None or statistics is None or fid not in statistics["channel_message_counts"]:
+    fids = frame_channels
+    counted = statistics["channel_message_counts"] if statistics is not None else {}
+    if not fids or not fids.issubset(counted):
         return None
     have = 0
     for c in chunks:
-        if c.indexed and fid in c.index:
-            have += c.index[fid][1] // 16
-        elif not c.indexed:
+        if c.indexed:
+            have += sum(c.index[f][1] // 16 for f in fids if f in c.index)
+        else:
             buf = unindexed[c.offset] if c.offset in unindexed else decompress(c)
-            have += len(walk_chunk(buf, {fid}).get(fid, ())) if buf is not None else 0
-    return max(0, statistics["channel_message_counts"][fid] - have)
+            walked = walk_chunk(buf, fids) if buf is not None else {}
+            have += sum(len(offs) for offs in walked.values())
+    return max(0, sum(counted[f] for f in fids) - have)
 
 
 def truncation_loss(
-    mm: Any, size: int, scan_end: int, chunks: list[ChunkInfo], frame_channel: int | None
+    mm: Any, size: int, scan_end: int, chunks: list[ChunkInfo], frame_channels: set[int]
 ) -> str:
     """'(~N frames, ~S s)' for the bytes after ``scan_end``: for a chunk cut short, from
     its own header (uncompressed size, time span) scaled by the complete chunks' frames
@@ -201,15 +205,14 @@ def truncation_loss(
     lost = size - scan_end
     if lost <= 0 or not chunks:
         return ""
-    fid = frame_channel
     indexed = [c for c in chunks if c.indexed]
-    frames = sum(c.index.get(fid, (0, 0))[1] // 16 for c in indexed) if fid else 0
+    frames = sum(c.index.get(f, (0, 0))[1] // 16 for c in indexed for f in frame_channels)
     if frames <= 0:
         return ""
     head = scan_end
     op = mm[head] if head < size else 0
     if op == OP_CHUNK and head + 9 + 24 <= size:
-        t0, t1, usize = struct.unpack_from("<QQQ", mm, head + 9)
+        t0, t1, usize = unpack_at("<QQQ", mm, head + 9)
         per_byte = frames / max(1, sum(c.uncompressed_size for c in indexed))
         span = f", {(t1 - t0) / 1e9:.1f} s" if t1 >= t0 else ""
         return f" (the last chunk, cut short: ~{int(usize * per_byte)} frames{span})"

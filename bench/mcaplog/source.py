@@ -14,6 +14,7 @@ from pathlib import Path
 
 from bench.errors import BenchError
 from bench.mcaplog import schemas as S
+from bench.mcaplog.filebytes import FileChanged
 from bench.mcaplog.reader import McapLog
 from devices.base import FileSource, SourceBatch, SourceNotice
 
@@ -45,6 +46,17 @@ class McapFrameSource(FileSource):
         self._position = 0
 
     def batches(self, max_frames: int = 65536) -> Iterator[SourceBatch]:
+        frames = 0
+        try:
+            for batch in self._batches(max_frames):
+                frames += len(batch.frames)
+                yield batch
+        except FileChanged as exc:  # what was replayed, then the error: never a signal
+            raise FileChanged(
+                f"{exc} (replay stopped after {frames} frames, at byte {self._position})"
+            ) from None
+
+    def _batches(self, max_frames: int) -> Iterator[SourceBatch]:
         last_t = math.nan
         bad_seen = len(self.log.bad_chunks)
         recorded = self.batching == "recorded"

@@ -143,13 +143,21 @@ def gather(buf: bytes, offsets: np.ndarray, dtype: np.dtype) -> np.ndarray:
     return view[offsets].view(dtype)
 
 
+def unpack_at(fmt: str, buf: Any, p: int) -> tuple[Any, ...]:
+    """``struct.unpack_from`` for a buffer or a file read on demand
+    (:class:`bench.mcaplog.filebytes.FileBytes`, which slices but has no buffer)."""
+    if isinstance(buf, bytes | bytearray | memoryview):
+        return struct.unpack_from(fmt, buf, p)
+    return struct.unpack(fmt, buf[p : p + struct.calcsize(fmt)])
+
+
 def read_str(buf: Any, p: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from("<I", buf, p)
+    (n,) = unpack_at("<I", buf, p)
     return bytes(buf[p + 4 : p + 4 + n]).decode("utf-8"), p + 4 + n
 
 
 def read_map(buf: Any, p: int) -> dict[str, str]:
-    (n,) = struct.unpack_from("<I", buf, p)
+    (n,) = unpack_at("<I", buf, p)
     p += 4
     end = p + n
     out = {}
@@ -163,15 +171,13 @@ def read_map(buf: Any, p: int) -> dict[str, str]:
 def read_statistics(buf: Any, p: int, end: int) -> dict[str, Any]:
     """The Statistics record whose body starts at ``p`` and whose record ends at ``end``;
     ValueError when its counts map claims more bytes than the record holds."""
-    msg, schemas, channels, atts, metas, chunks, t0, t1, n = struct.unpack_from(
-        "<QHIIIIQQI", buf, p
-    )
+    msg, schemas, channels, atts, metas, chunks, t0, t1, n = unpack_at("<QHIIIIQQI", buf, p)
     p += 8 + 2 + 4 * 4 + 16 + 4
     if p + n > end:
         raise ValueError(f"channel counts of {n} bytes overrun the record")
     counts = {}
     for k in range(n // 10):
-        cid, count = struct.unpack_from("<HQ", buf, p + 10 * k)
+        cid, count = unpack_at("<HQ", buf, p + 10 * k)
         counts[cid] = count
     return {
         "message_count": msg,
@@ -188,16 +194,16 @@ def read_statistics(buf: Any, p: int, end: int) -> dict[str, Any]:
 
 def parse_schema(buf: Any, p: int) -> SchemaInfo:
     """A Schema record's body at ``p``."""
-    (sid,) = struct.unpack_from("<H", buf, p)
+    (sid,) = unpack_at("<H", buf, p)
     name, p = read_str(buf, p + 2)
     enc, p = read_str(buf, p)
-    (n,) = struct.unpack_from("<I", buf, p)
+    (n,) = unpack_at("<I", buf, p)
     return SchemaInfo(sid, name, enc, bytes(buf[p + 4 : p + 4 + n]))
 
 
 def parse_channel(buf: Any, p: int) -> ChannelInfo:
     """A Channel record's body at ``p``."""
-    cid, sid = struct.unpack_from("<HH", buf, p)
+    cid, sid = unpack_at("<HH", buf, p)
     topic, p = read_str(buf, p + 4)
     enc, p = read_str(buf, p)
     return ChannelInfo(cid, sid, topic, enc, read_map(buf, p))
@@ -206,9 +212,9 @@ def parse_channel(buf: Any, p: int) -> ChannelInfo:
 def parse_chunk(buf: Any, pos: int, p: int, end: int) -> ChunkInfo:
     """The header of the Chunk record at ``pos`` (body at ``p``, record ends at ``end``);
     its data stays in the file."""
-    start, stop, usize, crc = struct.unpack_from("<QQQI", buf, p)
+    start, stop, usize, crc = unpack_at("<QQQI", buf, p)
     comp, p = read_str(buf, p + 28)
-    (dlen,) = struct.unpack_from("<Q", buf, p)
+    (dlen,) = unpack_at("<Q", buf, p)
     if p + 8 + dlen > end:
         raise ValueError("chunk data overruns its record")
     return ChunkInfo(pos, end - pos, start, stop, usize, crc, comp, p + 8, dlen)
@@ -216,10 +222,10 @@ def parse_chunk(buf: Any, pos: int, p: int, end: int) -> ChunkInfo:
 
 def parse_attachment(buf: Any, pos: int, p: int, end: int) -> AttachmentInfo:
     """The Attachment record at ``pos``: where its data lies, not the data."""
-    log_time, create_time = struct.unpack_from("<QQ", buf, p)
+    log_time, create_time = unpack_at("<QQ", buf, p)
     name, p = read_str(buf, p + 16)
     media, p = read_str(buf, p)
-    (n,) = struct.unpack_from("<Q", buf, p)
+    (n,) = unpack_at("<Q", buf, p)
     if p + 8 + n + 4 > end:
         raise ValueError("attachment data overruns its record")
     return AttachmentInfo(name, media, log_time, create_time, p + 8, n, pos, end - pos)
