@@ -254,7 +254,7 @@ def read_table(path: str | Path) -> np.ndarray:
     """Tilt-table steps: (K, 3) start_s, end_s, gradient_permil. One-line BenchError if bad."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")  # an editor's byte-order mark is fine
     except OSError as exc:
         raise BenchError(f"cannot read table {p}: {exc.strerror or exc}") from None
     rows: list[list[float]] = []

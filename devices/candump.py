@@ -59,6 +59,7 @@ _DIG[48:58] = np.arange(10, dtype=np.uint8)
 _HEXCHARS = frozenset("0123456789abcdefABCDEF")
 _DIGITS = frozenset("0123456789")
 _SNIPPET = 60
+UTF8_BOM = b"\xef\xbb\xbf"
 
 
 @dataclass(frozen=True, slots=True)
@@ -441,6 +442,7 @@ class CandumpFileSource(DiskFileSource):
         with self._open_binary() as f:
             carry = b""
             skipping = False  # inside an overlong line that was already reported
+            first = True
             while True:
                 try:
                     chunk = f.read(self.chunk_bytes)
@@ -448,6 +450,8 @@ class CandumpFileSource(DiskFileSource):
                     yield self._read_failed(exc)
                     return
                 eof = not chunk
+                if first:
+                    chunk, first = chunk.removeprefix(UTF8_BOM), False  # an editor's BOM
                 data, carry = carry + chunk, b""
                 if skipping:
                     cut = data.find(b"\n")

@@ -27,12 +27,22 @@ from typing import Any
 
 import can
 import numpy as np
-from can.io.blf import FILE_HEADER_SIZE, OBJ_HEADER_BASE_STRUCT, BLFParseError, BLFReader
+from can.io.blf import (
+    FILE_HEADER_SIZE,
+    LOG_CONTAINER,
+    LOG_CONTAINER_STRUCT,
+    NO_COMPRESSION,
+    OBJ_HEADER_BASE_STRUCT,
+    ZLIB_DEFLATE,
+    BLFParseError,
+    BLFReader,
+)
 
 from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
 from devices.bus import frames_from_messages, one_line
-from devices.candump import CandumpFileSource
+from devices.candump import UTF8_BOM, CandumpFileSource
 from devices.errors import BenchError
+from devices.paths import file_kind
 from devices.text_logs import CSV_HEADER, TEXT_FORMATS, TextFormat, read_text_log
 from protocol.frames import empty_frames
 from protocol.records import LinkError
@@ -54,7 +64,7 @@ def check_readable(path: Path) -> int:
         st = path.stat()
         if not stat.S_ISREG(st.st_mode):
             raise BenchError(
-                f"cannot read log {path}: not a regular file ({_file_kind(st.st_mode)}); "
+                f"cannot read log {path}: not a regular file ({file_kind(st.st_mode)}); "
                 "copy the recording to a file first"
             )
         size = st.st_size
@@ -65,18 +75,6 @@ def check_readable(path: Path) -> int:
     except OSError as exc:
         raise cannot_read(path, exc) from exc
     return size
-
-
-def _file_kind(mode: int) -> str:
-    for test, name in (
-        (stat.S_ISFIFO, "a FIFO"),
-        (stat.S_ISCHR, "a character device"),
-        (stat.S_ISBLK, "a block device"),
-        (stat.S_ISSOCK, "a socket"),
-    ):
-        if test(mode):
-            return name
-    return "not a file"
 
 
 def unknown_extension(path: Path, known: tuple[str, ...]) -> BenchError:
@@ -103,11 +101,69 @@ def open_log(path: str | os.PathLike[str], **kwargs: Any) -> FileSource:
 
 
 class _GuardedBLFReader(BLFReader):
-    """BLFReader that refuses objects shorter than their own header.
+    """BLFReader that refuses objects shorter than their own header, and reads past an
+    object whose size field claims more bytes than the file has left.
 
     python-can's inner loop never advances past an object whose size field is 0, so a
     corrupt file would spin forever (python-can issue #1584); here it is a BLFParseError.
+    Its outer loop reads an object's size as given: a size of 0xFFFFFFF0 swallows the rest
+    of the file as one container (a 4 GB read), whose compressed stream ends long before
+    the file does, and every later container is lost without a word. Here such an object
+    ends where the next object header begins; each is noted in ``damage``.
     """
+
+    def __init__(self, file: Any, **kwargs: Any) -> None:
+        super().__init__(file, **kwargs)
+        self.damage: list[str] = []
+        self._end = os.fstat(self.file.fileno()).st_size
+
+    def __iter__(self) -> Iterator[can.Message]:
+        head = OBJ_HEADER_BASE_STRUCT.size
+        while True:
+            at = self.file.tell()
+            data = self.file.read(head)
+            if not data:
+                break
+            signature, _, _, obj_size, obj_type = OBJ_HEADER_BASE_STRUCT.unpack(data)
+            if signature != b"LOBJ":
+                raise BLFParseError(f"no object header at byte {at}")
+            if at + obj_size > self._end and self.file_size <= self._end:
+                # not a cut file (its header's size is all there): the size field is damaged
+                obj_data = self._to_next_object()
+                self.damage.append(
+                    f"object at byte {at} claims {obj_size} bytes, {self._end - at} are left: "
+                    f"read as {head + len(obj_data)} bytes, up to the next object"
+                )
+            else:
+                obj_data = self.file.read(obj_size - head)
+                self.file.read(obj_size % 4)  # padding
+            if obj_type == LOG_CONTAINER:
+                method, _ = LOG_CONTAINER_STRUCT.unpack_from(obj_data)
+                container = obj_data[LOG_CONTAINER_STRUCT.size :]
+                if method == NO_COMPRESSION:
+                    yield from self._parse_container(container)
+                elif method == ZLIB_DEFLATE:
+                    yield from self._parse_container(zlib.decompressobj().decompress(container))
+                else:
+                    self.damage.append(f"container at byte {at}: unknown compression {method}")
+        self.stop()
+
+    def _to_next_object(self, block: int = 1 << 20) -> bytes:
+        """The bytes from here to the next container's header (or the end), the file left
+        there. (An uncompressed container holds message objects, also signed LOBJ.)"""
+        start = self.file.tell()
+        data = bytearray()
+        while more := self.file.read(block):
+            at = max(0, len(data) - 15)  # a header may straddle two blocks
+            data += more
+            while (at := data.find(b"LOBJ", at)) >= 0 and at + 16 <= len(data):
+                if OBJ_HEADER_BASE_STRUCT.unpack_from(data, at)[4] == LOG_CONTAINER:
+                    del data[at:]
+                    self.file.seek(start + len(data))
+                    return bytes(data)
+                at += 4
+        self.file.seek(start + len(data))
+        return bytes(data)
 
     def _parse_data(self, data: bytes) -> Iterator[can.Message]:
         pos, end, header = 0, len(data), OBJ_HEADER_BASE_STRUCT.size
@@ -180,7 +236,8 @@ class CanLogReaderSource(DiskFileSource):
         if suffix == ".csv":
             try:
                 with self.path.open("rb") as f:
-                    head = f.readline(4096).decode("utf-8", "replace").strip()
+                    head = f.readline(4096).removeprefix(UTF8_BOM).decode("utf-8", "replace")
+                head = head.strip()
             except OSError as exc:
                 raise cannot_read(self.path, exc) from exc
             if self._size and head != _CSV_HEADER:
@@ -229,7 +286,10 @@ class CanLogReaderSource(DiskFileSource):
             reader.stop()
         self._pos = self._size
         self.frames += len(msgs)
-        notices = []
+        notices = [
+            SourceNotice(math.nan, "parse_error", f"{self.path}: {d}")
+            for d in getattr(reader, "damage", ())
+        ]
         declared = getattr(reader, "file_size", 0)  # BLF headers record the final size
         if isinstance(declared, int) and declared > self._size:
             # python-can stops quietly at a cut BLF container; say so

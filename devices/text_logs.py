@@ -22,6 +22,7 @@ import can
 from can.io.trc import TRCFileVersion
 
 from devices.base import SourceNotice
+from devices.candump import UTF8_BOM
 
 MAX_LINE_BYTES = 4096
 """A longer "line" is not a log record (binary noise without newlines): counted, skipped."""
@@ -127,6 +128,8 @@ class LineLedger:
         if not raw:
             raise StopIteration
         self.lineno += 1
+        if self.lineno == 1:
+            raw = raw.removeprefix(UTF8_BOM)  # an editor's byte-order mark
         if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
             self.overlong.append(self.lineno)
             while raw and not raw.endswith(b"\n"):  # skip to the end of this "line"

@@ -7,13 +7,18 @@ from pathlib import Path
 from typing import Any
 
 from devices.errors import ConfigError
+from devices.paths import regular_file_problem
 
 MAX_NESTING = 32
 """Deepest nesting of arrays and tables an operator's TOML may have (ours need 3)."""
 
 
 def read_text_file(path: Path, what: str) -> str:
-    """The file's UTF-8 text; ConfigError naming the file when it is missing or not text."""
+    """The file's UTF-8 text; ConfigError naming the file when it is missing, not a regular
+    file (a FIFO or /dev/zero would be read forever) or not text."""
+    why = regular_file_problem(path)
+    if why.startswith("not a regular file") or why == "it is a folder":
+        raise ConfigError(f"{path}: cannot read {what}: {why}")
     try:
         return path.read_text(encoding="utf-8-sig")  # an editor's byte-order mark is fine
     except OSError as exc:

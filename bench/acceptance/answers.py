@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import contextlib
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from bench.acceptance.model import StepWindow
 from bench.acceptance.plan import Step
 from bench.errors import BenchError, ConfigError
+from devices.textfile import parse_toml, read_text_file
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,14 +45,7 @@ def load_answers(path: str | Path) -> list[Answer]:
     """A steps file: ``[[answers]]`` in step order with ``answer`` ("ok" | "skip" |
     "abort"), optional ``reference_permil`` and ``note``. ConfigError naming the key."""
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read steps file: {exc.strerror or exc}") from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not a UTF-8 text file (byte {exc.start})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    data = parse_toml(read_text_file(p, "steps file"), str(p))
     for key in data:
         if key != "answers":
             raise ConfigError(f"{p.name}: {key}: unknown key (expected: answers)")

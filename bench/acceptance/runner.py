@@ -43,6 +43,7 @@ from bench.pipeline.steps import Pipeline, StepOutput
 from bench.records.events import EVENT_DTYPE, concat_events
 from bench.records.results import RESULT_DTYPE
 from bench.replay.run import run_steps
+from devices.paths import write_file
 
 SILENCE_S = 10.0
 """A live run with no new sample for this long (wall clock) has lost its board: error."""
@@ -451,7 +452,7 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
     scenario_path = out / "scenario.toml"
     if plan.scenario is not None and mode != "live":
         # the emulated board as a file: `bench emulate DIR/scenario.toml` replays it
-        scenario_path.write_text(plan.scenario_toml(), encoding="utf-8")
+        write_file(scenario_path, plan.scenario_toml())
     setup = None
     if mode == "live":
         assert opts.live_args is not None  # a live mode is chosen from them

@@ -144,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.speed > 0:
         raise BenchError(f"--speed must be > 0, got {args.speed!r}")
     plan = load_plan(args.plan)
+    check_paths(args, plan)
     answers = load_answers(args.steps) if args.steps else None
     err = Console(stderr=True)
     opts = Options(
@@ -173,6 +174,27 @@ def run(args: argparse.Namespace) -> int:
     if outcome.error:
         print(f"bench: error: {outcome.error}", file=sys.stderr)
     return outcome.exit_code
+
+
+def check_paths(args: argparse.Namespace, plan: Plan) -> None:
+    """The files the run writes into --out against the files it reads, before it starts."""
+    from bench.acceptance.plan import resolve_plan_path
+    from bench.acceptance.report.write import output_files
+    from bench.acceptance.runner import has_live_source
+    from bench.live.setup import scenario_file
+    from devices.paths import check_clashes
+
+    writes_scenario = plan.scenario is not None and not has_live_source(args)
+    check_clashes(
+        [
+            ("plan", resolve_plan_path(args.plan)),
+            ("plan's scenario", plan.scenario_ref),
+            ("--config", args.config),
+            ("--steps", args.steps),
+            ("--emulate scenario", scenario_file(args.emulate)),
+        ],
+        [("--out", p) for p in output_files(Path(args.out), scenario=writes_scenario)],
+    )
 
 
 def result_table(outcome: RunOutcome) -> Table:

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from bench.errors import BenchError
+from devices.paths import check_clashes, write_file
 
 REFERENCE_HELP = (
     "what the recording is known to show: 'speed' (in motion, against SPEED_REF), 'level' "
@@ -36,6 +37,10 @@ def run(args: argparse.Namespace) -> int:
     from bench.config import load_config
     from bench.replay.sources import open_replay
 
+    check_clashes(
+        [("log", args.log), ("--config", args.config), ("--reference table", args.reference)],
+        [("--out", args.out)],
+    )
     reference, table = args.reference, None
     if reference is not None and reference not in ("speed", "level"):
         if not reference.lower().endswith(".csv"):
@@ -61,9 +66,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         header = [f"bench calibrate {args.log} --reference {args.reference or reference}"]
         header += fit.report().splitlines()
-        out.write_text(
-            "".join(f"# {line}\n" for line in header) + fit.config.to_toml(), encoding="utf-8"
-        )
+        write_file(out, "".join(f"# {line}\n" for line in header) + fit.config.to_toml())
     except OSError as exc:
         raise BenchError(f"cannot write {out}: {exc.strerror or exc}") from None
     print(f"wrote {out}")

@@ -15,7 +15,7 @@ import devices
 from bench.commands.argtypes import SPEED
 from bench.config_choice import announce, live_config, scenario_config
 from bench.defaults import log_folder
-from bench.live.setup import add_log_arguments
+from bench.live.setup import add_log_arguments, check_live_paths
 from bench.mcaplog.foxglove_stream import add_foxglove_arguments
 
 __all__ = ["DEMO_SCENARIO", "register", "run", "scenario_config"]
@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.engine.plans import EmulatorPlan, cli_values
     from devices.emulator.scenario import resolve_scenario_path
 
+    check_live_paths(args)
     path = resolve_scenario_path(args.scenario)
     config = live_config(args.config, path)
     log_dir = Path(args.mcap).parent if args.mcap else log_folder()

@@ -96,6 +96,13 @@ def run(args: argparse.Namespace) -> int:
         )
     if not (math.isfinite(args.speed) and args.speed > 0):
         raise BenchError(f"--speed must be a positive number, got {args.speed!r}")
+    from bench.live.setup import scenario_file
+    from devices.paths import check_clashes
+
+    check_clashes(
+        [("scenario", scenario_file(args.scenario))],
+        [("--out", args.out), ("--truth", args.truth), ("--calibration-out", args.calibration_out)],
+    )
 
     sc = load_scenario(args.scenario)
     if args.seed is not None:
@@ -162,6 +169,7 @@ def _write_calibration(sc: Any, out: str, given: str) -> None:
     """The board's calibration sheet as built: what a bench replaying its frames needs."""
     from bench.config_choice import scenario_config
     from devices.emulator import calibration_toml
+    from devices.paths import write_file
 
     config = scenario_config(sc)
     header = (
@@ -169,7 +177,7 @@ def _write_calibration(sc: Any, out: str, given: str) -> None:
         "# use it to replay this board's frames: bench replay FILE --config THIS_FILE\n"
     )
     try:
-        Path(out).write_text(header + calibration_toml(sc), encoding="utf-8")
+        write_file(out, header + calibration_toml(sc))  # whole or not at all
     except OSError as exc:
         raise BenchError(f"{out}: cannot write: {exc.strerror or exc}") from None
     print(f"wrote the calibration sheet to {out} ({config.angles_text()})")

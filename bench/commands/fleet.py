@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from rich.console import Console
 
@@ -42,14 +43,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from bench.config import load_config
-    from bench.fleet.run import expand, fleet_table, run_fleet
+    from bench.fleet.run import LOGS_FILE, check_workers, expand, fleet_table, run_fleet
     from bench.sinks.paths import check_output_dir
+    from devices.paths import check_clashes
 
-    if args.workers is not None and args.workers < 1:
-        raise BenchError(f"--workers must be >= 1, got {args.workers}")
+    check_workers(args.workers)
     paths = expand(args.logs)
     if not paths:
         raise BenchError(f"no logs match {' '.join(args.logs)}")
+    check_clashes(
+        [("--config", args.config), *(("log", p) for p in paths)],
+        [("--out index", Path(args.out) / LOGS_FILE)],
+    )
     check_output_dir(args.out, "fleet output")
     config_toml = None
     if args.config:  # validated here, sent to the workers as text (they may not see the file)

@@ -9,17 +9,16 @@ raw frames); export --candump: the raw frames as a candump -L text log.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import math
 import sys
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
 from bench.sinks.paths import check_output_file, write_error
+from devices.paths import check_clashes, staged
 
 
 def register(subparsers: Any) -> None:
@@ -91,11 +90,15 @@ def run_info(args: argparse.Namespace) -> int:
 _OUR_TOPIC_PREFIXES = ("/can/", "/uart/", "/source/", "/bench/", "/emulator/")
 
 
-def _open_out(stack: ExitStack, target: str) -> TextIO:
+def _export_candump(frames: np.ndarray, target: str) -> tuple[int, int]:
+    """The frames as candump text into ``target`` (``-``: stdout), whole or not at all."""
     if target == "-":
-        return sys.stdout
+        written = write_candump(frames, sys.stdout)
+        sys.stdout.flush()
+        return written
     try:
-        return stack.enter_context(open(target, "w", newline="", encoding="utf-8"))
+        with staged(target) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+            return write_candump(frames, fh)
     except OSError as exc:
         raise write_error(target, exc) from None
 
@@ -105,22 +108,15 @@ def run_export(args: argparse.Namespace) -> int:
 
     target = args.candump or args.csv or args.parquet
     what = "candump log" if args.candump else "CSV" if args.csv else "Parquet file"
+    flag = "--candump" if args.candump else "--csv" if args.csv else "--parquet"
+    check_clashes([("input log", args.file), ("--config", args.config)], [(flag, target)])
     check_output_file(target, what)  # before reading anything
-    with McapLog(args.file) as lg, ExitStack() as stack:
+    with McapLog(args.file) as lg:
         for warning in dict.fromkeys(lg.warnings):
             print(f"bench: warning: {warning}", file=sys.stderr)
         if args.candump:
-            fh = _open_out(stack, args.candump)
             frames, errors, _ = lg.read_frames()
-            try:
-                written, no_time = write_candump(frames, fh)
-                fh.flush()
-                if fh is not sys.stdout:
-                    stack.close()  # the last bytes reach the disk here, and can fail here
-            except OSError as exc:
-                if isinstance(exc, BrokenPipeError):
-                    raise
-                raise write_error(args.candump, exc) from None
+            written, no_time = _export_candump(frames, args.candump)
             print(f"bench: exported {written} frames to {args.candump}", file=sys.stderr)
             if no_time:
                 print(
@@ -192,7 +188,7 @@ def export_results(
     from bench.config import load_config
     from bench.mcaplog.recorded import read_results, recorded_config
     from bench.pipeline.steps import Pipeline
-    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
+    from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
 
     config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
     results = None if recompute else read_results(lg)
@@ -224,8 +220,7 @@ def export_results(
             finally:
                 source.close()
     except BaseException:
-        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
-            sink.close()
+        abort_all([sink])  # the failure being raised is the one to tell; nothing is left
         raise
     sink.close()
     return sink.rows

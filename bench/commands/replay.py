@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,6 +22,7 @@ from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.sinks.paths import check_output_file
 from bench.sinks.summary import print_summary
+from devices.paths import check_clashes
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
@@ -69,11 +69,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.replay.run import replay  # the pipeline only for this command, not every CLI start
+    # the pipeline only for this command, not every CLI start
+    from bench.replay.run import no_frames, replay
     from bench.replay.sources import open_replay
-    from bench.sinks.tables import csv_sink, parquet_sink, results_metadata
+    from bench.sinks.tables import abort_all, close_all, csv_sink, parquet_sink, results_metadata
 
     console = Console(stderr=True)
+    check_clashes(
+        [("input log", args.input), ("--config", args.config), ("--plan", args.plan)],
+        [("--csv", args.csv), ("--parquet", args.parquet)],
+    )
     if args.csv:
         check_output_file(args.csv, "CSV")
     if args.parquet:
@@ -92,12 +97,9 @@ def run(args: argparse.Namespace) -> int:
 
         check_readable(Path(args.input))  # before its recorded config is read: not a FIFO
     config = replay_config(args.config, args.input)
+    if args.compare:
+        _check_recorded_results(args.input)
     source = open_replay(args.input)
-    if not args.quiet:  # plain lines: a console width must not break them
-        print(f"bench: {config.announcement()}", file=sys.stderr)
-        hint = replay_hint(config, args.input)
-        if hint:
-            print(f"bench: {hint}", file=sys.stderr)
     sinks = []
     try:
         if args.csv:
@@ -105,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         if args.parquet:
             sinks.append(parquet_sink(args.parquet, results_metadata(config, args.input)))
     except BaseException:
-        _close_all(sinks)
+        abort_all(sinks)
         source.close()
         raise
     from bench.pipeline.warmup import prepare
@@ -139,14 +141,20 @@ def run(args: argparse.Namespace) -> int:
                 )
         else:
             outcome = replay(source, config, feed, collect=False)
+        if not outcome.pipeline.stats.frames:
+            raise no_frames(args.input, outcome.notices)
     except BaseException:
-        _close_all(sinks)  # the first failure is the one to tell
+        abort_all(sinks)  # the first failure is the one to tell; no output is left
         raise
     else:
-        for sink in sinks:
-            sink.close()  # raises a write failure as a one-line error
+        close_all(sinks)  # raises a write failure as a one-line error
     finally:
         source.close()
+    if not args.quiet:  # plain lines: a console width must not break them
+        print(f"bench: {config.announcement()}", file=sys.stderr)
+        hint = replay_hint(config, args.input)
+        if hint:
+            print(f"bench: {hint}", file=sys.stderr)
     shown = outcome.notices[:MAX_NOTICES]
     for notice in shown:
         console.print(f"[yellow]warning:[/] {escape(notice)}")
@@ -164,11 +172,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _close_all(sinks: list) -> None:
-    """Close the sinks after another failure, keeping quiet about their own."""
-    for sink in sinks:
-        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
-            sink.close()
+def _check_recorded_results(path: str) -> None:
+    """--compare needs the results the run recorded: say so before replaying."""
+    from bench.mcaplog import schemas as S
+    from bench.mcaplog.reader import McapLog
+
+    with McapLog(path) as lg:
+        if not lg.message_counts().get(S.RESULT_TOPIC, 0):
+            raise BenchError(
+                f"{path}: no recorded results to compare with (an emulator's or another "
+                "writer's log holds only frames): replay it without --compare"
+            )
 
 
 def _compare(args: argparse.Namespace, after: Any, plan: Any, console: Console) -> int:

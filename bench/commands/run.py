@@ -15,7 +15,13 @@ from typing import TYPE_CHECKING, Any
 
 from bench.commands.argtypes import SECONDS
 from bench.config_choice import announce, live_config
-from bench.live.setup import LiveSetup, add_live_arguments, open_live, open_recording
+from bench.live.setup import (
+    LiveSetup,
+    add_live_arguments,
+    check_live_paths,
+    open_live,
+    open_recording,
+)
 from bench.live.view import Snapshot
 from bench.mcaplog.foxglove_stream import open_stream
 from bench.sinks.paths import check_output_file
@@ -84,8 +90,9 @@ def run(args: argparse.Namespace) -> int:
     old_handlers = {sig: signal.signal(sig, on_signal) for sig in ends}
     with contextlib.ExitStack() as opening:  # unwound only when opening fails part way
         opening.callback(_restore_handlers, old_handlers, ignore=False)
+        check_live_paths(args, ("--csv", args.csv))  # before a bus, a board or a file opens
         if args.csv:
-            check_output_file(args.csv, "CSV")  # before a bus, a board or an MCAP file opens
+            check_output_file(args.csv, "CSV")
         config = live_config(args.config, getattr(args, "emulate", None))
         setup = open_live(args)
         opening.callback(setup.close)
@@ -199,13 +206,25 @@ def _report(
     for line in runner.output_errors:
         print(f"bench: error: {line}", file=sys.stderr)
     for sink in runner_sinks(runner):
-        if getattr(sink, "rows_lost", 0):
+        if not getattr(sink, "kept", True):  # removed: never half a file under its name
+            again = ""
+            if recording is not None and not log_error:
+                rec = recording.path
+                again = f"; every result is in {rec}: bench log export {rec} --csv {sink.path}"
+            print(
+                f"bench: error: {sink.path}: not written ({sink.rows} result rows had been "
+                f"written when it failed, {sink.rows_lost} not){again}",
+                file=sys.stderr,
+            )
+        elif getattr(sink, "rows_lost", 0):
             print(
                 f"bench: error: {sink.path}: {sink.rows_lost} result rows not written "
                 f"({sink.rows} written)",
                 file=sys.stderr,
             )
-    lost = any(getattr(s, "rows_lost", 0) for s in runner_sinks(runner))
+    lost = any(
+        getattr(s, "rows_lost", 0) or not getattr(s, "kept", True) for s in runner_sinks(runner)
+    )
     silent = runner.frames_received == 0
     if silent:  # a channel name typo on a virtual bus looks just like this: say so, exit 1
         kind = "" if stopped else "error: "

@@ -11,7 +11,7 @@ from bench.config import Config
 from bench.config_choice import announce, live_config, replay_config, replay_hint
 from bench.defaults import log_folder
 from bench.errors import BenchError
-from bench.live.setup import add_live_arguments
+from bench.live.setup import add_live_arguments, check_live_paths
 
 if TYPE_CHECKING:
     from bench.live.view import SessionLike
@@ -47,6 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_live_paths(args)
     if args.replay:
         config = replay_config(args.config, args.replay)
     else:

@@ -59,6 +59,31 @@ def expand(patterns: list[str]) -> list[str]:
     return out
 
 
+WORKERS_PER_CPU = 4
+"""Local workers allowed per CPU: a worker is a process (~100 MB, a Dask nanny, sockets);
+past a few per CPU more only cost memory and start-up, never speed."""
+
+
+def usable_cpus() -> int:
+    cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    return len(cpus) if cpus else (os.cpu_count() or 1)
+
+
+def check_workers(workers: int | None) -> None:
+    """BenchError unless ``--workers`` is between 1 and WORKERS_PER_CPU per usable CPU."""
+    if workers is None:
+        return
+    if workers < 1:
+        raise BenchError(f"--workers must be >= 1, got {workers}")
+    cpus = usable_cpus()
+    most = WORKERS_PER_CPU * cpus
+    if workers > most:
+        raise BenchError(
+            f"--workers {workers}: at most {most} here ({WORKERS_PER_CPU} per CPU, {cpus} "
+            "CPUs; each worker is a process); more machines: --scheduler tcp://HOST:PORT"
+        )
+
+
 def previous_rows(out_dir: Path) -> list[dict[str, Any]]:
     """The rows of an earlier run's logs.parquet (none when there is none or it is unreadable)."""
     path = out_dir / LOGS_FILE
@@ -78,9 +103,13 @@ def _client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
             return Client(scheduler, timeout="20s"), None
         except OSError as exc:
             raise BenchError(f"cannot reach the Dask scheduler at {scheduler}: {exc}") from None
+        except (ValueError, TypeError) as exc:  # dask's parse of the address
+            raise BenchError(
+                f"--scheduler {scheduler!r}: not a scheduler address ({exc}); expected "
+                "tcp://HOST:PORT"
+            ) from None
     if workers is None:
-        cpus = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
-        workers = len(cpus) if cpus else (os.cpu_count() or 1)
+        workers = usable_cpus()
     cluster = LocalCluster(
         n_workers=workers,
         threads_per_worker=1,

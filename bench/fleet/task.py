@@ -14,6 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from devices.paths import regular_file_problem
+
 FORMATS = {
     ".log": "candump",
     ".asc": "asc",
@@ -61,6 +63,8 @@ def replay_one(
         "bench_version": __version__,
     }
     try:
+        if why := regular_file_problem(path):  # a FIFO or a device would be hashed forever
+            raise OSError(why)
         row["size_bytes"] = os.path.getsize(path)
         digest = content_hash(path)
     except OSError as exc:
@@ -73,16 +77,12 @@ def replay_one(
         row["skipped"] = True
         return row
     part = partition(out_dir, lid)
-    tmp = part / f".{PART_FILE}.{os.getpid()}.tmp"
     try:
-        row.update(_replay_into(path, tmp, config_toml))
-        os.replace(tmp, part / PART_FILE)
+        row.update(_replay_into(path, part / PART_FILE, config_toml))
     except Exception as exc:  # a log that cannot be read is a row, never the end of the run
         from bench.errors import BenchError
 
         row["error"] = str(exc) if isinstance(exc, BenchError) else f"{type(exc).__name__}: {exc}"
-        with contextlib.suppress(OSError):
-            tmp.unlink()
         with contextlib.suppress(OSError):
             (part / PART_FILE).unlink()
         with contextlib.suppress(OSError):
@@ -116,21 +116,22 @@ def _config_for(path: str, config_toml: str | None) -> Any:
 
 def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
     from bench.fleet.summary import SummarySink, summary_row
-    from bench.replay.run import replay
+    from bench.replay.run import no_frames, replay
     from bench.replay.sources import open_replay
-    from bench.sinks.tables import parquet_sink, results_metadata
+    from bench.sinks.tables import abort_all, parquet_sink, results_metadata
 
     config = _config_for(path, config_toml)
     source = open_replay(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         summary = SummarySink()
-        out = parquet_sink(target, results_metadata(config, path))
+        out = parquet_sink(target, results_metadata(config, path))  # renamed into place
         try:
             outcome = replay(source, config, [out, summary], collect=False)
+            if not outcome.pipeline.stats.frames:  # not "replayed": an error row
+                raise no_frames(path, outcome.notices)
         except BaseException:
-            with contextlib.suppress(Exception):
-                out.close()
+            abort_all([out])
             raise
         out.close()
     finally:

@@ -122,6 +122,35 @@ def open_live(args: argparse.Namespace) -> LiveSetup:
     return LiveSetup(source, desc, _slug(desc))
 
 
+def scenario_file(name: str | Path | None) -> str | Path | None:
+    """The file a scenario argument names (a built-in name resolved), for comparing paths."""
+    if name is None:
+        return None
+    from devices.emulator.scenario import resolve_scenario_path
+
+    try:
+        return resolve_scenario_path(name)
+    except BenchError:
+        return name  # reported when the scenario is loaded
+
+
+def check_live_paths(args: argparse.Namespace, *outputs: tuple[str, str | None]) -> None:
+    """A live command's outputs (``--mcap`` unless ``--no-log``, and ``outputs``) against
+    its inputs (the scenario, ``--config``) and each other, before anything opens."""
+    from devices.paths import check_clashes
+
+    scenario = getattr(args, "emulate", None) or getattr(args, "scenario", None)
+    mcap = None if getattr(args, "no_log", False) else getattr(args, "mcap", None)
+    check_clashes(
+        [
+            ("scenario", scenario_file(scenario)),
+            ("--config", getattr(args, "config", None)),
+            ("--replay log", getattr(args, "replay", None)),
+        ],
+        [("--mcap", mcap), *outputs],
+    )
+
+
 def default_log_path(slug: str, log_dir: Path | None = None) -> Path:
     """``logs/<UTC time>-<source>.mcap``, in ``log_dir`` or the defaults' log folder."""
     from bench.defaults import log_folder

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.config import Config
+from bench.errors import BenchError
 from bench.pipeline.steps import Pipeline, StepOutput
 from bench.records.results import RESULT_DTYPE
 from bench.replay.prefetch import prefetch
@@ -56,3 +57,17 @@ def replay(
             on_progress(source.position())
     results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
     return ReplayOutcome(pipeline, results, notices)
+
+
+def no_frames(path: object, notices: list[str]) -> BenchError:
+    """The one-line error for a log that yielded no frame at all (random bytes with a log's
+    extension, an MCAP cut before its first chunk): an empty replay is no replay."""
+    why = ""
+    if notices:
+        first = notices[0].split(": ", 1)[-1].removeprefix(f"{path}: ")
+        first = "".join(c if c.isprintable() else repr(c)[1:-1] for c in first)
+        if len(first) > 160:
+            first = first[:157] + "..."
+        more = f"{len(notices)} problems, the first: " if len(notices) > 1 else ""
+        why = f" ({more}{first})"
+    return BenchError(f"{path}: no frame in this log{why}")

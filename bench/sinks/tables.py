@@ -12,10 +12,17 @@ fails (disk full, a broken device) does not raise in the pipeline: the sink keep
 first error in ``error`` (one line naming the file), drops what follows and counts it in
 ``rows_lost``; the replay turns that into ``bench: error:`` and exit 2, a live run into an
 event, a status-line flag and a non-zero exit while the MCAP log goes on.
+
+A file is written under a temporary name beside the real one (:class:`devices.paths.
+StagedFile`) and renamed into place by :meth:`TableSink.close` only when complete and
+without a failure; a failed or aborted output is removed, so the real name never holds
+half a file. A live run's file that is deleted or replaced while it is written, or whose
+real name becomes a folder, is a write failure like a full disk.
 """
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 from collections.abc import Callable
@@ -30,6 +37,7 @@ import pyarrow.parquet as pq
 
 from bench.records.columns import CSV_SCHEMA, RESULTS, Layout
 from bench.sinks.paths import STDOUT, check_output_file, describe_os_error
+from devices.paths import StagedFile, stageable
 
 if TYPE_CHECKING:
     from bench.config import Config
@@ -184,9 +192,12 @@ class TableSink:
         raise_errors: bool = False,
         cpus: frozenset[int] | None = None,
         kind: str = "CSV",
+        staged: StagedFile | None = None,
     ) -> None:
         self.file = file
-        self.path = file.path
+        self.staged = staged  # the temporary name the file is written under, if any
+        self.path = str(staged.path) if staged is not None else file.path
+        self.kept = True  # False once a staged file was removed (failed or aborted)
         self.kind = kind
         self.layout = layout
         self.live = live
@@ -244,12 +255,42 @@ class TableSink:
         pass
 
     def close(self) -> None:
-        """Write what is queued, finish the file; raises the failure if ``raise_errors``."""
+        """Write what is queued, finish the file and rename it into place; raises the
+        failure if ``raise_errors`` (the file is then removed)."""
+        self.finish()
+        self.commit()
+        self._raise()
+
+    def finish(self) -> None:
+        """Write what is queued and finish the file, still under its temporary name."""
         with self._cond:
             self._closing = True
             self._cond.notify_all()
         self._thread.join()
-        self._raise()
+
+    def commit(self) -> None:
+        """The finished file renamed into place; after a failure it is removed instead."""
+        if self.staged is None or self.staged.done:
+            return
+        if self.error is not None:
+            self.discard()
+            return
+        try:
+            self.staged.commit()
+        except OSError as exc:
+            self.kept = False
+            self._fail(exc, self.rows)
+
+    def abort(self) -> None:
+        """Finish and remove the file: another failure ends the run (nothing half-written
+        stays under the real name)."""
+        self.finish()
+        self.discard()
+
+    def discard(self) -> None:
+        if self.staged is not None and not self.staged.done:
+            self.staged.discard()
+            self.kept = False
 
     def _raise(self) -> None:
         if self.broken_pipe and self.raise_errors:
@@ -302,6 +343,9 @@ class TableSink:
                     buffered, n_buffered = rest.to_batches(), rest.num_rows
             if end:
                 break
+            live_file = self.live and self.staged is not None and self.error is None
+            if live_file and (why := self.staged.problem()):  # type: ignore[union-attr]
+                self._fail(OSError(why), 0)  # like a full disk: the rows go nowhere
         try:
             self.file.close()
         except Exception as exc:  # the last bytes and the footer can fail too
@@ -335,6 +379,7 @@ class TableSink:
             "rows": self.rows,
             "rows_lost": self.rows_lost,
             "error": self.error,
+            "kept": self.kept,
         }
 
 
@@ -348,12 +393,14 @@ def csv_sink(
         from devices.cpu_placement import other_cpus
 
         cpus = other_cpus()
+    staged = StagedFile(target) if stageable(target) else None
     return TableSink(
-        _open(CsvFile, target, "CSV", **kw),
+        _open(CsvFile, target, "CSV", staged, **kw),
         live=live,
         raise_errors=not live if raise_errors is None else raise_errors,
         cpus=cpus,
         kind="CSV",
+        staged=staged,
     )
 
 
@@ -362,20 +409,46 @@ def parquet_sink(
 ) -> TableSink:
     """The results Parquet file of a replay, path checked first."""
     check_output_file(target, "Parquet file")
+    staged = StagedFile(target) if stageable(target) else None
     return TableSink(
-        _open(ParquetFile, target, "Parquet file", metadata=metadata, **kw),
+        _open(ParquetFile, target, "Parquet file", staged, metadata=metadata, **kw),
         chunk_rows=PARQUET_ROW_GROUP,
         raise_errors=True,
         kind="Parquet file",
+        staged=staged,
     )
 
 
-def _open(cls: type, target: str | Path, what: str, **kw: Any) -> Any:
+def close_all(sinks: list[TableSink]) -> None:
+    """Finish every file, then rename them all into place; when one failed, every one is
+    removed and the first failure raised (a replay's outputs are whole or absent)."""
+    for sink in sinks:
+        sink.finish()
+    failed = next((s for s in sinks if s.error is not None or s.broken_pipe), None)
+    for sink in sinks:
+        if failed is not None:
+            sink.discard()
+        else:
+            sink.commit()
+    for sink in sinks:
+        sink._raise()
+
+
+def abort_all(sinks: list[TableSink]) -> None:
+    """Finish and remove every file after another failure, keeping quiet about their own."""
+    for sink in sinks:
+        with contextlib.suppress(Exception):  # the failure being raised is the one to tell
+            sink.abort()
+
+
+def _open(cls: type, target: str | Path, what: str, staged: StagedFile | None, **kw: Any) -> Any:
     from bench.errors import BenchError
 
     try:
-        return cls(target, **kw)
+        return cls(staged.create() if staged is not None else target, **kw)
     except OSError as exc:
+        if staged is not None:
+            staged.discard()
         raise BenchError(f"{target}: cannot write the {what}: {describe_os_error(exc)}") from None
 
 

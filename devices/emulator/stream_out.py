@@ -21,6 +21,7 @@ from devices.emulator.engine import TRUTH_COLUMNS
 from devices.emulator.scenario import Scenario
 from devices.emulator.stream import CHUNK_S, Chunk, RunCounts, simulate_chunks
 from devices.errors import BenchError
+from devices.paths import staged
 
 OUT_SUFFIXES = (".log", ".bin", ".mcap")
 
@@ -64,8 +65,35 @@ def write_streamed(
         )
     counts = RunCounts(sc)
     truth_rows = [0]
+    try:
+        line = _write(sc, p, suffix, truth, mcap_writer, chunk_s, counts, truth_rows)
+    except OSError as exc:  # renaming a finished file into place
+        raise BenchError(f"{exc.filename or p}: cannot write: {exc.strerror or exc}") from None
+    lines = []
+    if truth is not None:
+        lines.append(f"wrote truth of {truth_rows[0]} sampling instants to {truth}")
+    if line is not None:
+        lines.append(line)
+    return lines, counts
+
+
+def _write(
+    sc: Scenario,
+    p: Path | None,
+    suffix: str,
+    truth: str | Path | None,
+    mcap_writer: McapStreamWriter | None,
+    chunk_s: float,
+    counts: RunCounts,
+    truth_rows: list[int],
+) -> str | None:
+    """The files written under temporary names, renamed into place once all are complete
+    (a run that fails part way leaves neither, and keeps what the names held)."""
     with contextlib.ExitStack() as stack:
-        truth_file = _open(stack, truth) if truth is not None else None
+        truth_file = None
+        if truth is not None:
+            truth_file = _open(stack, stack.enter_context(staged(truth)), truth)
+        out = stack.enter_context(staged(p)) if p is not None else None
 
         def chunks() -> Iterator[Chunk]:
             first = True
@@ -76,46 +104,42 @@ def write_streamed(
                 first = False
                 yield chunk
 
-        line = None
-        if p is None:
+        if p is None or out is None:
             for _ in chunks():
                 pass
-        elif suffix == ".log":
-            line = _write_candump(p, chunks(), counts)
-        elif suffix == ".bin":
-            f = _open(stack, p)
+            return None
+        if suffix == ".log":
+            return _write_candump(out, chunks(), counts, p)
+        if suffix == ".bin":
+            f = _open(stack, out, p)
             for chunk in chunks():
                 _guarded(p, partial(f.write, chunk.uart))
-            line = (
+            return (
                 f"wrote {counts.packets} UART packets ({counts.uart_bytes} bytes, "
                 f"{counts.packets_broken} broken by UART faults) to {p}"
             )
-        else:
-            assert mcap_writer is not None
-            written = mcap_writer(p, chunks(), sc)
-            line = f"wrote {written.get('frames', counts.frames)} CAN frames and truth to {p}"
-    lines = []
-    if truth is not None:
-        lines.append(f"wrote truth of {truth_rows[0]} sampling instants to {truth}")
-    if line is not None:
-        lines.append(line)
-    return lines, counts
+        assert mcap_writer is not None
+        written = mcap_writer(out, chunks(), sc)
+        return f"wrote {written.get('frames', counts.frames)} CAN frames and truth to {p}"
 
 
-def _write_candump(p: Path, chunks: Iterator[Chunk], counts: RunCounts) -> str:
+def _write_candump(out: Path, chunks: Iterator[Chunk], counts: RunCounts, p: Path) -> str:
     from devices.writers import CandumpWriter
 
-    with CandumpWriter(p) as writer:
-        for chunk in chunks:
-            writer.write(chunk.frames)
+    try:
+        with CandumpWriter(out) as writer:
+            for chunk in chunks:
+                writer.write(chunk.frames)
+    except BenchError as exc:  # named after the file the operator asked for
+        raise BenchError(str(exc).replace(str(out), str(p))) from None
     return f"wrote {counts.frames} CAN frames to {p}"
 
 
-def _open(stack: contextlib.ExitStack, path: str | Path) -> IO[bytes]:
+def _open(stack: contextlib.ExitStack, path: str | Path, shown: str | Path) -> IO[bytes]:
     try:
         return stack.enter_context(Path(path).open("wb"))
     except OSError as exc:
-        raise BenchError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        raise BenchError(f"{shown}: cannot write: {exc.strerror or exc}") from None
 
 
 def _guarded(path: Any, write: Callable[[], Any]) -> None:

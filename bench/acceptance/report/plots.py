@@ -13,6 +13,7 @@ import numpy as np
 from bench.acceptance.model import Measurement, RunData
 from bench.acceptance.outcome import RunOutcome
 from bench.records.events import EventKind
+from devices.paths import staged
 
 MAX_POINTS = 6000
 """Points per plotted line: longer series are reduced to a min/max envelope."""
@@ -234,7 +235,12 @@ def _error_range(ax: Any, measurements: list[Measurement]) -> float | None:
     return lim if lim < float(values.max()) else None
 
 
+PLOT_NAMES = ("gradient", "slopes", "votes", "errors")
+"""The plots of a report, each ``NAME.png`` in the run's folder."""
+
+
 def write_plots(outcome: RunOutcome, out: Path) -> dict[str, str]:
+    """Every plot into ``out``, each renamed into place once drawn; name -> file name."""
     run = outcome.run
     if run is None or len(run.results) == 0:
         return {}
@@ -245,8 +251,9 @@ def write_plots(outcome: RunOutcome, out: Path) -> dict[str, str]:
         "errors": lambda p: plot_errors(run, outcome.measurements, p),
     }
     files = {}
-    for name, job in jobs.items():
+    for name in PLOT_NAMES:
         p = out / f"{name}.png"
-        job(p)
+        with staged(p) as tmp:
+            jobs[name](tmp)
         files[name] = p.name
     return files
