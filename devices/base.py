@@ -148,6 +148,24 @@ class DiskFileSource(FileSource):
         except OSError as exc:
             raise cannot_read(self.path, exc) from exc
 
+    def _check_unchanged(self, frames: int) -> None:
+        """At the end of the file: BenchError when its size is no longer what it was when
+        opened (a copy still being written, a truncate): what was read is of neither
+        version, so the replay stops instead of passing it off as the file."""
+        try:
+            size = self.path.stat().st_size
+        except OSError as exc:
+            now = f"now {exc.strerror or exc}"
+        else:
+            if size == self._size:
+                return
+            now = f"{size} bytes now"
+        raise BenchError(
+            f"{self.path}: the file changed while it was read ({self._size} bytes when "
+            f"opened, {now}): replay stopped after {frames} frames; a file still being "
+            "written or copied must be read once it is complete"
+        )
+
     def _read_failed(self, exc: OSError) -> SourceBatch:
         """The last batch of a stream whose read failed part way."""
         detail = f"{self.path}: read failed after {self._pos} bytes: {exc}"

@@ -478,6 +478,7 @@ class CandumpFileSource(DiskFileSource):
                 self._pos = f.tell() - len(carry)
                 if eof:
                     break
+        self._check_unchanged(self.frames)
 
     def _emit(self, chunk: ParsedChunk, max_frames: int) -> Iterator[SourceBatch]:
         self.lines += chunk.n_lines

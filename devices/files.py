@@ -286,6 +286,7 @@ class CanLogReaderSource(DiskFileSource):
             reader.stop()
         self._pos = self._size
         self.frames += len(msgs)
+        self._check_unchanged(self.frames)
         notices = [
             SourceNotice(math.nan, "parse_error", f"{self.path}: {d}")
             for d in getattr(reader, "damage", ())
@@ -328,6 +329,7 @@ class CanLogReaderSource(DiskFileSource):
             f.close()
         self._pos = self._size
         self.frames += len(msgs)
+        self._check_unchanged(self.frames)
         if not self.frames and not self.parse_errors and self._size:
             detail = f"{self.path}: no CAN frames found (not a {self.path.suffix} log?)"
             notices.append(SourceNotice(math.nan, "parse_error", detail))
@@ -397,6 +399,7 @@ class UartCaptureSource(DiskFileSource):
             if carry:  # the last packet never got its 0x00
                 yield from self._emit(empty_frames(), deframe_bytes(carry, nan)[1], max_frames)
             self._pos = self._size
+        self._check_unchanged(self.frames)
 
     def _emit(
         self, frames: np.ndarray, errors: list[LinkError], max_frames: int

@@ -14,6 +14,21 @@ from typing import Any, TypeGuard
 from devices.errors import ConfigError
 
 _CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f\ufffe\uffff]")
+
+
+def printable(text: str) -> str:
+    """``text`` with every character a terminal, a TOML comment or a record line cannot
+    carry (control characters, a line break) written as its escape (``\\x07``)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def control_character(text: str) -> str | None:
+    """The first character of ``text`` that a record cannot carry (a control character:
+    XML 1.0 has no form for most of them), as ``U+0007``; None when there is none."""
+    bad = _CONTROL.search(text)
+    return f"U+{ord(bad.group()):04X}" if bad else None
+
+
 """Characters refused in text values (tab, newline and carriage return are fine)."""
 
 _TYPE_NAMES = {
@@ -153,12 +168,10 @@ class Table:
         v = self.raw(key, default)
         if not isinstance(v, str):
             raise self.error(key, f"expected a string, got {tname(v)} {v!r}")
-        bad = _CONTROL.search(v)
+        bad = control_character(v)
         if bad:
             # they reach terminals, HTML and junit.xml, where XML 1.0 cannot carry them
-            raise self.error(
-                key, f"control character U+{ord(bad.group()):04X} not allowed in a text value"
-            )
+            raise self.error(key, f"control character {bad} not allowed in a text value")
         return v
 
     def choice(self, key: str, default: Any = None, *, choices: tuple[Any, ...]) -> Any:

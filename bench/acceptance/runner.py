@@ -52,6 +52,11 @@ DRAIN_S = 0.3
 """After the virtual board's last frame: time for it to cross the virtual bus."""
 
 
+class Stopped(KeyboardInterrupt):
+    """A signal (SIGTERM, SIGHUP) ended the run: handled like Ctrl-C, so the records are
+    written, and said in them (``str()`` is the reason)."""
+
+
 @dataclass
 class Options:
     out_dir: Path
@@ -471,8 +476,8 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         else:
             run, source = _run_live(plan, config, opts, info, setup, mode)
         measurements = [run_check(c, run) for c in plan.checks]
-    except KeyboardInterrupt:
-        error = "interrupted by the operator"
+    except KeyboardInterrupt as exc:
+        error = str(exc) if isinstance(exc, Stopped) else "interrupted by the operator"
     except BenchError as exc:
         error = str(exc)
     except Exception as exc:  # the bench failed: say so in the record, exit 2

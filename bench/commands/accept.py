@@ -7,8 +7,12 @@ overnight script can act on it without parsing anything.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING
 
 from rich.console import Console
@@ -85,15 +89,27 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_context(args: argparse.Namespace, plan: Plan) -> RunContext:
     """The unit (the plan's, command-line values winning), the station and the operator."""
     from bench.acceptance.signoff import RunContext, default_operator, default_station
+    from devices.tomlcheck import control_character
 
+    station = args.station or default_station()
+    operator = args.operator or default_operator()
+    given = {
+        "--dut-serial": args.dut_serial,
+        "--dut-firmware": args.dut_firmware,
+        "--dut-hardware": args.dut_hardware,
+        "--station (or $BENCH_STATION)": station,
+        "--operator (or $BENCH_OPERATOR)": operator,
+    }
+    for option, value in given.items():
+        if value is not None and (bad := control_character(value)):
+            raise BenchError(
+                f"{option} {value!r}: control character {bad}: the record, the report and "
+                "junit.xml take plain text"
+            )
     dut = plan.dut.override(
         serial=args.dut_serial, firmware=args.dut_firmware, hardware=args.dut_hardware
     )
-    return RunContext(
-        dut=dut,
-        station=args.station or default_station(),
-        operator=args.operator or default_operator(),
-    )
+    return RunContext(dut=dut, station=station, operator=operator)
 
 
 def list_table() -> Table:
@@ -165,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
 
     prepare(lambda m: err.print(f"bench: {m}", highlight=False, soft_wrap=True))
     try:
-        outcome = run_plan(plan, opts)
+        with stopped_by_signals():
+            outcome = run_plan(plan, opts)
     except OSError as exc:  # a full disk or a vanished folder: an error, not a fail verdict
         where = exc.filename or args.out
         why = describe_os_error(exc)  # exit 2; a half-written junit.xml is not valid XML
@@ -174,6 +191,26 @@ def run(args: argparse.Namespace) -> int:
     if outcome.error:
         print(f"bench: error: {outcome.error}", file=sys.stderr)
     return outcome.exit_code
+
+
+@contextlib.contextmanager
+def stopped_by_signals() -> Iterator[None]:
+    """SIGTERM and SIGHUP end the run as Ctrl-C does (the records say so and are written);
+    a second signal while they are written waits for them."""
+    from bench.acceptance.runner import Stopped
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        for sig in old:
+            signal.signal(sig, signal.SIG_IGN)
+        raise Stopped(f"stopped by {signal.Signals(signum).name}")
+
+    sigs = [signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
+    old = {sig: signal.signal(sig, stop) for sig in sigs}
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def check_paths(args: argparse.Namespace, plan: Plan) -> None:

@@ -5,13 +5,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import io
 import math
+import os
 import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from types import FrameType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TextIO
 
 from bench.commands.argtypes import SECONDS
 from bench.config_choice import announce, live_config
@@ -73,7 +76,61 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     )
 
 
+class _ClosedPipeSafe(io.TextIOBase):
+    """stdout or stderr for a live run: when the reader goes away (``bench run | head -1``)
+    what follows is dropped instead of a BrokenPipeError ending the recording early; the
+    descriptor is pointed at /dev/null so the interpreter's last flush is quiet too."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self._stream = stream
+        self.closed_pipe = False
+
+    def write(self, text: str) -> int:
+        if not self.closed_pipe:
+            try:
+                self._stream.write(text)
+            except BrokenPipeError:
+                self._gone()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.closed_pipe:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._gone()
+
+    def isatty(self) -> bool:
+        return not self.closed_pipe and self._stream.isatty()
+
+    def fileno(self) -> int:
+        return self._stream.fileno()
+
+    def _gone(self) -> None:
+        self.closed_pipe = True
+        with contextlib.suppress(OSError, ValueError):
+            null = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(null, self._stream.fileno())
+            os.close(null)
+
+
+@contextlib.contextmanager
+def _closed_pipes_ignored() -> Iterator[None]:
+    """A status pipe that closes does not stop a recording (see _ClosedPipeSafe)."""
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _ClosedPipeSafe(sys.stdout), _ClosedPipeSafe(sys.stderr)  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = saved
+
+
 def run(args: argparse.Namespace) -> int:
+    with _closed_pipes_ignored():
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from bench.live.runner import LiveRunner  # the pipeline only for this command
 
     # from the first moment: a signal at any point ends the run with a finished log

@@ -218,6 +218,9 @@ class McapProcessSink(QueuedSink):
         **options: Any,
     ) -> None:
         super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
+        # the live Foxglove stream is no log: its failures are the runner's output errors
+        # (and a server that cannot start is the caller's one-line error), never "MCAP log"
+        self._is_log = options.get("sink", "mcap") == "mcap"
         self.frames_sent = 0  # frames handed to the writer process
         self.port: int | None = None  # a live Foxglove stream's port (from the writer)
         options = dict(options, flush_interval_s=flush_interval_s)
@@ -264,10 +267,11 @@ class McapProcessSink(QueuedSink):
         self.errors = max(self.errors, int(status["errors"]))
         if status["error"] and self.error is None:
             self.error = str(status["error"])
-            log.error(
-                "MCAP log FAILED: %s -- nothing more is logged to it (frames counted as lost)",
-                self.error,
-            )
+            if self._is_log:
+                log.error(
+                    "MCAP log FAILED: %s -- nothing more is logged to it (frames counted as lost)",
+                    self.error,
+                )
 
     def _take_replies(self, timeout: float) -> str | None:
         """Mirror every status the writer sent; the last reply's kind (None: none)."""
@@ -292,8 +296,10 @@ class McapProcessSink(QueuedSink):
         self.errors += 1
         if self.error is None:
             code = self._proc.returncode
-            self.error = f"{self.path}: the MCAP writer process {what} (exit code {code})"
-            log.error("MCAP log %s FAILED: writer process %s", self.path, what)
+            kind = "MCAP writer" if self._is_log else "Foxglove stream's"
+            self.error = f"{self.path}: the {kind} process {what} (exit code {code})"
+            if self._is_log:
+                log.error("MCAP log %s FAILED: writer process %s", self.path, what)
         # what was handed over and not written is lost; what comes next is counted below
         self.frames_lost = max(self.frames_lost, self.frames_sent - self.frames_logged)
 

@@ -14,6 +14,7 @@ from bench.records.results import RESULT_DTYPE
 from bench.replay.prefetch import prefetch
 from bench.sinks.base import Sink
 from devices.base import FileSource, SourceBatch
+from devices.tomlcheck import printable
 
 
 @dataclass
@@ -65,7 +66,7 @@ def no_frames(path: object, notices: list[str]) -> BenchError:
     why = ""
     if notices:
         first = notices[0].split(": ", 1)[-1].removeprefix(f"{path}: ")
-        first = "".join(c if c.isprintable() else repr(c)[1:-1] for c in first)
+        first = printable(first)
         if len(first) > 160:
             first = first[:157] + "..."
         more = f"{len(notices)} problems, the first: " if len(notices) > 1 else ""

@@ -19,7 +19,7 @@ from typing import Any
 
 from devices.errors import ConfigError
 from devices.textfile import parse_toml, path_or_packaged, read_text_file
-from devices.tomlcheck import Table, is_integer
+from devices.tomlcheck import Table, is_integer, printable
 from protocol.layout import (
     DEFAULT_BASE,
     DEFAULT_SAMPLE_RATE_HZ,
@@ -563,7 +563,7 @@ def calibration_toml(sc: Scenario) -> str:
     temperature, as on a real board.
     """
     lines = [
-        f"# calibration of the virtual board of {sc.source}",
+        f"# calibration of the virtual board of {printable(sc.source)}",
         "[board]",
         f"base_id = 0x{sc.base_id:X}",
         f"sample_rate_hz = {sc.sample_rate_hz}",

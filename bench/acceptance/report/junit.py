@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import socket
 import xml.etree.ElementTree as ET
 
@@ -97,5 +98,25 @@ def junit_xml(outcome: RunOutcome) -> bytes:
         f" ({outcome.error})" if outcome.error else ""
     )
     ET.SubElement(suite, "system-err").text = outcome.error or ""
+    _xml_text_only(root)
     ET.indent(root)
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+_NOT_XML = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+"""Characters XML 1.0 cannot carry, escaped or not: ElementTree writes them as they are
+and the file is not well-formed (an error text naming a file, a host name)."""
+
+
+def _xml_text_only(root: ET.Element) -> None:
+    """Every text and attribute with those characters written as ``\\xNN`` instead."""
+
+    def clean(text: str | None) -> str | None:
+        if text is None or not _NOT_XML.search(text):
+            return text
+        return _NOT_XML.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+    for el in root.iter():
+        el.text, el.tail = clean(el.text), clean(el.tail)
+        for key, value in el.attrib.items():
+            el.attrib[key] = clean(value) or ""
