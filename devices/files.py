@@ -21,7 +21,7 @@ import os
 import stat
 import struct
 import zlib
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -117,7 +117,7 @@ class _GuardedBLFReader(BLFReader):
         self.damage: list[str] = []
         self._end = os.fstat(self.file.fileno()).st_size
 
-    def __iter__(self) -> Iterator[can.Message]:
+    def __iter__(self) -> Generator[can.Message, None, None]:
         head = OBJ_HEADER_BASE_STRUCT.size
         while True:
             at = self.file.tell()

@@ -118,7 +118,7 @@ class _ClosedPipeSafe(io.TextIOBase):
 def _closed_pipes_ignored() -> Iterator[None]:
     """A status pipe that closes does not stop a recording (see _ClosedPipeSafe)."""
     saved = sys.stdout, sys.stderr
-    sys.stdout, sys.stderr = _ClosedPipeSafe(sys.stdout), _ClosedPipeSafe(sys.stderr)  # type: ignore[assignment]
+    sys.stdout, sys.stderr = _ClosedPipeSafe(sys.stdout), _ClosedPipeSafe(sys.stderr)
     try:
         yield
     finally:

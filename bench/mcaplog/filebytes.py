@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import overload
 
 from bench.mcaplog.structure import McapReadError
 
@@ -33,6 +34,10 @@ class FileBytes:
     def __len__(self) -> int:
         return self.size
 
+    @overload
+    def __getitem__(self, key: int) -> int: ...
+    @overload
+    def __getitem__(self, key: slice) -> bytes: ...
     def __getitem__(self, key: int | slice) -> bytes | int:
         if isinstance(key, slice):
             start, stop, step = key.indices(self.size)

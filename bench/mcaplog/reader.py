@@ -286,7 +286,8 @@ class McapLog:
     ) -> ChunkInfo | None:
         """Take in one data-section record; returns the chunk whose MessageIndex records
         may follow (the new one after a Chunk, else ``last_chunk``)."""
-        mm, body = self._mm, pos + 9
+        mm: FileBytes | bytes = self._mm
+        body = pos + 9
         if op in (OP_HEADER, OP_SCHEMA, OP_CHANNEL, OP_METADATA, OP_DATA_END):
             mm, body = mm[pos:end], 9  # one read for the record, not one per field
         if op == OP_HEADER:
@@ -312,7 +313,7 @@ class McapLog:
         elif op == OP_ATTACHMENT:
             self.attachments.append(parse_attachment(mm, pos, body, end))
         elif op == OP_DATA_END:
-            (self.data_section_crc,) = struct.unpack_from("<I", mm, body)
+            (self.data_section_crc,) = struct.unpack_from("<I", mm[body : body + 4])
             self.data_end = pos
         return last_chunk
 
