@@ -157,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"bench: {hint}", file=sys.stderr)
     shown = outcome.notices[:MAX_NOTICES]
     for notice in shown:
-        console.print(f"[yellow]warning:[/] {escape(notice)}")
+        console.print(f"[yellow]warning:[/] {escape(notice)}", soft_wrap=True)  # one line each
     if len(outcome.notices) > len(shown):
         rest = len(outcome.notices) - len(shown)
         console.print(f"[yellow]warning:[/] ... and {rest} more (see the summary counts)")
