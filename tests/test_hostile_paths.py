@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from bench.cli import main
+from tests.test_hostile_inputs import one_error
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = 'description = "paths test"\nduration_s = 1.0\nseed = 2\nsample_rate_hz = 200\n'
@@ -27,14 +28,6 @@ PLAN = (
     '[plan]\ntitle = "paths"\nexpect = "pass"\n[scenario]\nduration_s = 1.0\n'
     '[[checks]]\nkind = "no_frame_loss"\n'
 )
-
-
-def one_error(code: int, err: str) -> str:
-    lines = err.strip().splitlines()
-    assert code == 2, err
-    assert len(lines) == 1 and lines[0].startswith("bench: error: "), err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 @pytest.fixture(scope="module")
