@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
+from collections.abc import Iterator
 
+import pytest
 from hypothesis import settings
 
 # No wall-time bound in any test: hypothesis's default 200 ms deadline per example is one
@@ -29,3 +32,21 @@ def pytest_configure() -> None:
     from bench.fusion.joint import warm_up
 
     warm_up()
+
+
+_ENDING_SIGNALS = tuple(
+    getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)
+)
+
+
+@pytest.fixture(autouse=True)
+def _signal_handlers_put_back() -> Iterator[None]:
+    """A command run in-process that was signalled stays deaf to repeats on purpose (its
+    process is about to exit); in a test process that deafness must not reach the next
+    test (CI: SIGINT ignored in one worker hung the read-ahead Ctrl-C test and both
+    SIGINT clean-stop tests, whose child inherited SIG_IGN)."""
+    saved = {s: signal.getsignal(s) for s in _ENDING_SIGNALS}
+    yield
+    for s, handler in saved.items():
+        if handler is not None and signal.getsignal(s) is not handler:
+            signal.signal(s, handler)
