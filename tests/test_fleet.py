@@ -170,3 +170,26 @@ def test_piped_fleet_table_keeps_every_column_whole(fleet, capsys, monkeypatch):
     for name in ("frames", "valid %", "excluded s ch1/2/3", "|ref-est| permil", "status"):
         assert name in header
     assert "…" not in printed and "train00.log" in printed
+
+
+def test_a_folder_stands_for_every_log_under_it(tmp_path):
+    """`bench fleet logs/` takes each log under the folder at any depth, by extension, in
+    sorted order, once; other files are not logs; a folder with no log matches nothing."""
+    from bench.fleet.run import expand
+
+    for name in ("b.log", "a.mcap", "sub/c.blf", "sub/deep/d.asc", "notes.txt", "x.parquet"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "empty").mkdir()
+    got = [Path(p).relative_to(tmp_path).as_posix() for p in expand([str(tmp_path)])]
+    assert got == ["a.mcap", "b.log", "sub/c.blf", "sub/deep/d.asc"]
+    # a file named both directly and through its folder is replayed once
+    assert len(expand([str(tmp_path / "b.log"), str(tmp_path)])) == 4
+    assert expand([str(tmp_path / "empty")]) == []
+
+
+def test_fleet_of_a_folder_with_no_log_is_one_error(tmp_path, capsys):
+    (tmp_path / "readme.txt").write_text("no logs here")
+    assert main(["fleet", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bench: error: no logs match") and err.count("\n") == 1

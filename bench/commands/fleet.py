@@ -21,7 +21,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "result row, hive-partitioned by `log`) and DIR/logs.parquet (one row per log). Logs "
         "already replayed into DIR (same content hash) are skipped. See docs/FLEET.md.",
     )
-    p.add_argument("logs", nargs="+", metavar="LOG_OR_GLOB", help="log files or glob patterns")
+    p.add_argument(
+        "logs",
+        nargs="+",
+        metavar="LOG_OR_GLOB",
+        help="log files, folders (every log under them) or glob patterns",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     where = p.add_mutually_exclusive_group()
     where.add_argument(

@@ -42,12 +42,16 @@ class FleetOutcome:
 
 
 def expand(patterns: list[str]) -> list[str]:
-    """Paths from files and glob patterns (``**`` recursive), in order, each once."""
+    """Paths from files, folders and glob patterns (``**`` recursive), in order, each once.
+
+    A folder stands for every log under it (any depth, by extension), as ``DIR/**/*``
+    would: ``bench fleet logs/`` is what a bench engineer types first."""
     out: list[str] = []
     seen: set[str] = set()
     for pat in patterns:
-        if glob.has_magic(pat):
-            matches = sorted(glob.glob(pat, recursive=True))
+        if glob.has_magic(pat) or os.path.isdir(pat):
+            where = os.path.join(glob.escape(pat), "**", "*") if os.path.isdir(pat) else pat
+            matches = sorted(glob.glob(where, recursive=True))
             matches = [m for m in matches if Path(m).suffix.lower() in FORMATS]
         else:
             matches = [pat]
