@@ -255,8 +255,8 @@ def _ride(seed: int, rate: int, cruise_mps: float) -> tuple[dict[str, Any], str]
     is built for its line's speed), growing with speed with exponent 0.5..1.5 around it.
     Body mode 0.8..3 Hz, the longitudinal tone at any phase; broadband from 0.3..1 Hz to
     15..40 Hz (below 0.45 x the sample rate). One run in four has a mounting resonance
-    per channel (2..20 mg at 8..45 Hz, below 0.45 x the sample rate: today's board has
-    no anti-alias filter)."""
+    per channel (2..20 mg at 8..45 Hz, below 0.45 x the sample rate, as drawn before the
+    board had its anti-alias filter: kept, so the draws stay the same)."""
     rng = _rng(seed, "ride")
     kind = str(rng.choice(list(RIDES), p=RIDE_P))
     scale = rng.uniform(*RIDES[kind])

@@ -64,6 +64,9 @@ scale_error = -0.002
 time0_ticks = 100
 drift_ppm = 500.0
 offset_s = 0.005
+
+[board]
+antialias_filter = false  # the formula below has the unfiltered 7 Hz tone (issue 25)
 """
 
 

@@ -257,6 +257,8 @@ VIB = """
 duration_s = 8.0
 sample_rate_hz = 200
 initial_speed_mps = {v}
+[board]
+antialias_filter = false  # the tones below are unfiltered (issue 25)
 [vibration]
 vertical_mps2 = 0.25
 longitudinal_mps2 = 0.08

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from devices.emulator import faults as fx
+from devices.emulator.antialias import gain_of
 from devices.emulator.board import FrameSet, adc_frames
 from devices.emulator.motion import scenario_motion
 from devices.emulator.scenario import Fault, Scenario
@@ -123,8 +124,10 @@ class Engine:
         t = us / 1e6
         motion = scenario_motion(sc, t)
         grad = gradient_profile(sc.track, sc.vertical_curve_m, motion.position_m)
+        filtered = sc.board.antialias_filter
+        rate = float(self.rate) if filtered else None
         body_x, body_z = body_vibration(
-            sc.vibration, t, motion.speed_mps, fx.rng_for(sc.seed, fx.LAYER_VIBRATION)
+            sc.vibration, t, motion.speed_mps, fx.rng_for(sc.seed, fx.LAYER_VIBRATION), rate
         )
         if sc.vertical_curve_accel:
             slope = gradient_slope(sc.track, sc.vertical_curve_m, motion.position_m)
@@ -139,7 +142,8 @@ class Engine:
                 )
             else:
                 ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
-            values[i] = sensor_output(ideal, ch, t, self.noise[i], rise)
+            h = gain_of(ch.vibration_hz, self.rate, filtered)
+            values[i] = sensor_output(ideal, ch, t, self.noise[i], rise, h)
         return values
 
     def _truth(self, idx: np.ndarray, us: np.ndarray) -> np.ndarray:

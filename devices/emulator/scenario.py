@@ -100,6 +100,7 @@ class BoardModel:
     latency_us: int = 100  # sampling instant -> frames queued for the bus
     frame_gap_us: int = 250  # bus time of one frame (8 bytes at 500 kbit/s)
     status_offset_us: int = 500  # BOARD_STATUS queued at k * 100 ms + this
+    antialias_filter: bool = True  # the ADC's sinc^3 decimator (devices/emulator/antialias.py)
 
 
 @dataclass(frozen=True, slots=True)
@@ -285,6 +286,7 @@ def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
         latency_us=t.integer("latency_us", 100, 0, 100_000),
         frame_gap_us=t.integer("frame_gap_us", 250, 1, 10_000),
         status_offset_us=t.integer("status_offset_us", 500, 0, 99_999),
+        antialias_filter=t.flag("antialias_filter", True),
     )
     t.done()
     # The bus must have room for everything, or send times would fall further behind forever.

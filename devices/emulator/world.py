@@ -174,15 +174,18 @@ def sensor_output(
     t: np.ndarray,
     rng: np.random.Generator,
     temperature_rise_k: np.ndarray | None = None,
+    vibration_gain: float = 1.0,
 ) -> np.ndarray:
     """The as-built sensor: scale error, bias (drifting with the board's temperature rise
-    since the start), vibration of its own mounting and white noise on the ideal value."""
+    since the start), vibration of its own mounting (times the anti-alias filter's
+    ``vibration_gain`` at its frequency) and white noise on the ideal value."""
     out = ideal_mps2 * (1.0 + ch.scale_error) + ch.bias_mps2
     if ch.bias_tempco_mps2_per_k and temperature_rise_k is not None:
         out = out + ch.bias_tempco_mps2_per_k * temperature_rise_k
     if ch.vibration_mps2 and ch.vibration_hz:
         phase = math.radians(ch.vibration_phase_deg)
-        out = out + ch.vibration_mps2 * np.sin(2.0 * math.pi * ch.vibration_hz * t + phase)
+        amp = ch.vibration_mps2 if vibration_gain == 1.0 else ch.vibration_mps2 * vibration_gain
+        out = out + amp * np.sin(2.0 * math.pi * ch.vibration_hz * t + phase)
     if ch.noise_mps2:
         out = out + ch.noise_mps2 * rng.standard_normal(len(out))
     return out
