@@ -43,6 +43,8 @@ duration_s = 20.0
 [[scenario.train]]
 duration_s = 15.0
 accel_mps2 = -0.3
+[scenario.body_pitch]
+enabled = false  # the body's pitch would read as gradient: the limits are of before it
 {channels}
 {checks}
 """

@@ -35,6 +35,8 @@ MOUNT = """
 seed = 5
 duration_s = 20.0
 sample_rate_hz = 50
+[body_pitch]
+enabled = false  # a load step at the station would shift the fitted tone
 [[channels]]
 angle_deg = 30.0
 [[channels]]

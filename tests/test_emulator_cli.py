@@ -76,6 +76,7 @@ def test_emulate_to_candump_log_and_truth_csv(scenario: Path, tmp_path: Path, ca
         "accel_mps2",
         "speed_mps",
         "position_m",
+        "body_pitch_deg",
     ]
     assert len(rows) == 1 + len(sim.truth) == 201
     last = [float(v) for v in rows[-1]]

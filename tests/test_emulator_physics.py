@@ -26,6 +26,8 @@ sample_rate_hz = 100
 g = {G}
 speed_ref = true
 vertical_curve_m = 40.0
+[body_pitch]
+enabled = false  # the hand formula below is the ICD's, of a body that does not pitch
 
 [[track]]
 length_m = 100.0
@@ -245,7 +247,8 @@ def test_over_range_clips_with_ovr():
 
 def test_white_noise_has_the_configured_deviation():
     sc = parse_scenario(
-        "duration_s = 50.0\nspeed_ref = false\n[[channels]]\nnoise_mps2 = 0.01\n"
+        "duration_s = 50.0\nspeed_ref = false\n[body_pitch]\nenabled = false\n"
+        "[[channels]]\nnoise_mps2 = 0.01\n"
         "[[channels]]\n[[channels]]\nnoise_mps2 = 0.002\n",
         "noise.toml",
     )

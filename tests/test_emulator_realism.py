@@ -370,6 +370,8 @@ def test_vertical_curve_adds_v_squared_over_r_normal_to_the_track():
 TEMP = """
 duration_s = 300.0
 sample_rate_hz = 50
+[body_pitch]
+enabled = false
 [[channels]]
 bias_mps2 = 0.002
 scale_error = 0.001

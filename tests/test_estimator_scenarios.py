@@ -101,6 +101,7 @@ STUCK = {
     "duration_s": 30.0,
     "vertical_curve_m": 100.0,
     "vertical_curve_accel": True,  # the car feels v^2/R over the crest, as a real one does
+    "body_pitch": {"enabled": False},  # the 0.2 permil bound is of before the body's pitch
     "initial_speed_mps": 5.0,
     # over a crest: +15 permil, then -5 permil from 150 m (reached at about 19 s)
     "track": [
@@ -147,6 +148,7 @@ def test_standstill_gives_exactly_zero_and_a_lost_speed_ref_coasts_at_rest() -> 
         {
             "duration_s": 12.0,
             "track": [{"length_m": 100.0, "gradient_permil": 7.0}],
+            "body_pitch": {"enabled": False},  # no passengers board: exactly 7 permil
             "channels": QUIET,
             "faults": [{"channel": "speed", "kind": "dropout", "start_s": 5.0, "end_s": 8.0}],
         }

@@ -20,6 +20,7 @@ import numpy as np
 from devices.emulator import faults as fx
 from devices.emulator.antialias import gain_of
 from devices.emulator.board import FrameSet, adc_frames
+from devices.emulator.body_pitch import BodyPitch, pitched_specific_force
 from devices.emulator.motion import scenario_motion
 from devices.emulator.scenario import Fault, Scenario
 from devices.emulator.stream_carry import Spikes
@@ -44,6 +45,7 @@ TRUTH_DTYPE = np.dtype(
         ("accel_mps2", "<f8"),  # d(speed)/dt along the track
         ("speed_mps", "<f8"),
         ("position_m", "<f8"),
+        ("body_pitch_deg", "<f8"),  # the car body's pitch on its suspension, nose up
     ]
 )
 TRUTH_COLUMNS: tuple[str, ...] = TRUTH_DTYPE.names or ()
@@ -88,6 +90,7 @@ class Engine:
             if f.kind == "spike"
         }
         self.spikes = self._spike_plans() if values else {}
+        self.pitch = BodyPitch(sc) if sc.body_pitch.enabled else None
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.next = 0  # the first instant of the next block
 
@@ -134,9 +137,14 @@ class Engine:
             body_z += curve_normal_accel(motion.speed_mps, grad, slope)
         extra = sc.vibration.active or sc.vertical_curve_accel
         rise = board_temperature(sc.board, t) - sc.board.temperature_c
+        pitch = self.pitch.deg(t) if self.pitch is not None else None
         values = np.empty((3, len(us)), dtype=np.float64)
         for i, ch in enumerate(sc.channels):
-            if extra:
+            if pitch is not None:  # the board sits on the pitching body
+                ideal = pitched_specific_force(
+                    motion.accel_mps2, grad, sc.g, ch.angle_deg, pitch, body_x, body_z
+                )
+            elif extra:
                 ideal = body_specific_force(
                     motion.accel_mps2, grad, sc.g, ch.angle_deg, body_x, body_z
                 )
@@ -158,6 +166,8 @@ class Engine:
         truth["accel_mps2"] = motion.accel_mps2
         truth["speed_mps"] = motion.speed_mps
         truth["position_m"] = motion.position_m
+        if self.pitch is not None:
+            truth["body_pitch_deg"] = self.pitch.deg(us / 1e6)
         return truth
 
     # -- the board's own faults (layer 1) --------------------------------------------------

@@ -155,6 +155,21 @@ class VibrationModel:
 
 
 @dataclass(frozen=True, slots=True)
+class BodyPitchModel:
+    """The car body's pitch on its secondary suspension (devices.emulator.body_pitch): a
+    second-order response to the train's acceleration, plus a static load pitch that
+    changes at stations. Defaults: a metro car (docs/EMULATOR.md derives them)."""
+
+    enabled: bool = True
+    compliance_deg_per_mps2: float = 0.05  # settled pitch per m/s^2, nose up accelerating
+    frequency_hz: float = 1.2  # the body's pitch mode
+    damping_ratio: float = 0.25
+    static_deg: float = 0.0  # the load's pitch at the start (0: as calibrated)
+    load_step_deg: float = 0.02  # standard deviation of its change at each station
+    min_dwell_s: float = 10.0  # a stop at least this long is a station
+
+
+@dataclass(frozen=True, slots=True)
 class Fault:
     index: int  # 1-based position in [[faults]]
     kind: str
@@ -199,6 +214,7 @@ class Scenario:
     board: BoardModel = field(default_factory=BoardModel)
     odometer: OdometerModel = field(default_factory=OdometerModel)
     vibration: VibrationModel = field(default_factory=VibrationModel)
+    body_pitch: BodyPitchModel = field(default_factory=BodyPitchModel)
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -356,6 +372,21 @@ def _parse_vibration(file: str, value: Any, rate: int) -> VibrationModel:
     return v
 
 
+def _parse_body_pitch(file: str, value: Any) -> BodyPitchModel:
+    t = Table(file, "body_pitch", value)
+    m = BodyPitchModel(
+        enabled=t.flag("enabled", True),
+        compliance_deg_per_mps2=t.num("compliance_deg_per_mps2", 0.05, -2.0, 2.0),
+        frequency_hz=t.num("frequency_hz", 1.2, 0.1, 20.0),
+        damping_ratio=t.num("damping_ratio", 0.25, 0.01, 0.99),
+        static_deg=t.num("static_deg", 0.0, -5.0, 5.0),
+        load_step_deg=t.num("load_step_deg", 0.02, 0.0, 2.0),
+        min_dwell_s=t.num("min_dwell_s", 10.0, 0.0, 1e6, lo_open=True),
+    )
+    t.done()
+    return m
+
+
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
@@ -471,6 +502,7 @@ _TOP_KEYS = (
     "board",
     "odometer",
     "vibration",
+    "body_pitch",
     "faults",
 )
 
@@ -521,6 +553,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         board=_parse_board(source, top.raw("board", {}), rate),
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
+        body_pitch=_parse_body_pitch(source, top.raw("body_pitch", {})),
         faults=tuple(
             _parse_fault(source, i, item, duration)
             for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
