@@ -147,3 +147,80 @@ class Client:
         elif d.get("op") == "advertise":
             for c in d.get("channels", []):
                 self.received.channels[int(c["id"])] = c
+
+
+class StalledClient:
+    """A viewer that subscribes to every channel and then never reads again: a raw socket
+    with a 4 KiB receive buffer (the kernel's window then closes after a few frames), the
+    WebSocket handshake and frames written by hand from RFC 6455 (client frames masked).
+    What a Foxglove app frozen by the operator's laptop, or a hostile peer, does to a run."""
+
+    def __init__(self, port: int, subprotocol: str = SUBPROTOCOLS[0]) -> None:
+        import base64
+        import os
+        import socket
+
+        self.sock = socket.socket()
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        self.sock.settimeout(30.0)
+        self.sock.connect(("127.0.0.1", port))
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall(
+            (
+                f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+                f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+                f"Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: {subprotocol}\r\n\r\n"
+            ).encode()
+        )
+        self._buf = b""
+        while b"\r\n\r\n" not in self._buf:
+            data = self.sock.recv(4096)
+            assert data, "the server closed the connection during the handshake"
+            self._buf += data
+        head, self._buf = self._buf.split(b"\r\n\r\n", 1)
+        self.status = head.split(b"\r\n", 1)[0].decode()
+        self.channels: dict[int, str] = {}
+
+    def _frame(self) -> tuple[int, bytes]:
+        """The next whole server frame (opcode, payload); server frames are unmasked."""
+        while True:
+            buf = self._buf
+            if len(buf) >= 2:
+                n, off = buf[1] & 0x7F, 2
+                if n == 126 and len(buf) >= 4:
+                    n, off = struct.unpack(">H", buf[2:4])[0], 4
+                elif n == 127 and len(buf) >= 10:
+                    n, off = struct.unpack(">Q", buf[2:10])[0], 10
+                if (n < 126 or off > 2) and len(buf) >= off + n:
+                    self._buf = buf[off + n :]
+                    return buf[0] & 0x0F, buf[off : off + n]
+            data = self.sock.recv(65536)
+            assert data, "the server closed the connection"
+            self._buf += data
+
+    def subscribe(self, topic: str = "/can/frames") -> StalledClient:
+        """Read the advertisements until ``topic`` is offered, subscribe to every channel
+        offered so far, and from then on read nothing."""
+        import os
+
+        while topic not in self.channels.values():
+            opcode, payload = self._frame()
+            if opcode == 0x1:
+                msg = json.loads(payload)
+                if msg.get("op") == "advertise":
+                    self.channels.update({int(c["id"]): c["topic"] for c in msg["channels"]})
+        text = json.dumps(
+            {
+                "op": "subscribe",
+                "subscriptions": [{"id": i, "channelId": c} for i, c in enumerate(self.channels)],
+            }
+        ).encode()
+        mask = os.urandom(4)
+        head = bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(text))
+        if len(text) < 126:
+            head = bytes([0x81, 0x80 | len(text)])
+        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(text)))
+        return self
+
+    def close(self) -> None:
+        self.sock.close()

@@ -267,9 +267,12 @@ def test_replay_config_that_is_not_a_file_is_refused(work, fifo, what, tmp_path)
     _refused(guarded(["replay", str(work["log"]), "--config", cfg, "-q"], tmp_path), cfg)
 
 
-def test_fleet_config_that_is_a_fifo_is_refused(work, fifo, tmp_path):
-    argv = ["fleet", str(work["log"]), "--out", str(tmp_path / "f"), "--config", str(fifo)]
-    _refused(guarded(argv, tmp_path), str(fifo))
+@pytest.mark.parametrize("what", ["fifo", "/dev/zero"])
+def test_fleet_config_that_is_not_a_file_is_refused(work, fifo, what, tmp_path):
+    cfg = str(fifo) if what == "fifo" else what
+    argv = ["fleet", str(work["log"]), "--out", str(tmp_path / "f"), "--config", cfg]
+    _refused(guarded(argv, tmp_path), cfg)
+    assert not (tmp_path / "f" / "logs.parquet").exists()
 
 
 @pytest.mark.parametrize("what", ["fifo", "/dev/zero"])
