@@ -1,0 +1,87 @@
+"""The model's state and parameters as named fields (indices into float64 arrays, so the
+compiled code takes plain arrays; every index has one name here and nowhere else).
+
+State x, in SI units:
+
+====  ==========================================================================
+V     speed along the track, m/s, signed like SPEED_REF
+A     acceleration dv/dt, m/s^2 (driven by white jerk)
+S     g sin(alpha), gravity along the track, m/s^2 (gradient = 1000 S / sqrt(g^2 - S^2))
+K     dS/dx, the gradient's change per metre (vertical curves), m/s^2 per m
+E     the odometer's wheel-scale error: it reads (1 + E) v (wheel diameter error), 1
+B1-3  each channel's bias, m/s^2 (random walk: a drifting channel is a large bias)
+====  ==========================================================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+V, A, S, K, E, B1, B2, B3 = range(8)
+NX = 8
+NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3")
+BIASES = (B1, B2, B3)
+
+
+@dataclass(frozen=True, slots=True)
+class ModelParams:
+    """The model's noise densities and priors, each a physical quantity."""
+
+    g: float = 9.80665  # local gravity, m/s^2
+    jerk_psd: float = 0.1  # white jerk driving A, (m/s^3)^2 / Hz
+    grade_psd_per_m: float = 1e-9  # white noise on S per metre, (m/s^2)^2 / m
+    grade_rate_psd_per_m: float = 1e-9  # random walk of K per metre, (m/s^2/m)^2 / m
+    wheel_scale_psd_per_m: float = 1e-12  # random walk of E per metre (wheel wear), 1/m
+    bias_psd: float = 1e-12  # random walk of each channel's bias, (m/s^2)^2 / s
+    channel_noise_mps2: float = 0.01  # each channel's white noise per sample, m/s^2
+    vibration_u_mps2: float = 0.0  # the body's common vibration along the track, m/s^2
+    vibration_w_mps2: float = 0.0  # ... and normal to it, m/s^2
+    odometer_noise_mps: float = 0.05  # SPEED_REF noise, m/s
+    speed0_mps: float = 1.0  # prior sigma of V
+    accel0_mps2: float = 1.0  # prior sigma of A
+    grade0_mps2: float = 0.5  # prior sigma of S (about 50 permil)
+    grade_rate0_per_m: float = 1e-4  # prior sigma of K
+    wheel_scale0: float = 0.03  # prior sigma of E (a 3 % wheel-diameter error)
+    bias0_mps2: float = 1e-3  # prior sigma of each bias (what calibration leaves)
+
+    def array(self) -> np.ndarray:
+        """The fields as a float64 array, in the order of the P_* indices below."""
+        return np.array([getattr(self, f.name) for f in fields(self)], dtype=np.float64)
+
+
+(
+    P_G,
+    P_QJ,
+    P_QS,
+    P_QK,
+    P_QE,
+    P_QB,
+    P_RCH,
+    P_RVU,
+    P_RVW,
+    P_RODO,
+    P_V0,
+    P_A0,
+    P_S0,
+    P_K0,
+    P_E0,
+    P_B0,
+) = range(16)
+NP = 16
+
+
+def initial(
+    prm: ModelParams, speed: float = 0.0, grade_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Prior state and covariance: the given speed and S, everything else zero."""
+    x = np.zeros(NX)
+    x[V] = speed
+    x[S] = grade_s
+    sig = np.zeros(NX)
+    sig[V], sig[A], sig[S] = prm.speed0_mps, prm.accel0_mps2, prm.grade0_mps2
+    sig[K], sig[E] = prm.grade_rate0_per_m, prm.wheel_scale0
+    for b in BIASES:
+        sig[b] = prm.bias0_mps2
+    return x, np.diag(sig * sig)

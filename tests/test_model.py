@@ -1,0 +1,291 @@
+"""The explicit model (bench.fusion.model): each f/h against a plain-numpy reference written
+from the physics, each Jacobian against finite differences, the Joseph update against the
+textbook form, and the RTS smoother against the dense least-squares posterior of a linear
+Gaussian model (exact for it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from bench.fusion.model import ekf, linalg, measure, process, smoother, state
+from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, S, V
+
+G = 9.80665
+THETA = np.radians([-30.0, 0.0, 30.0])  # a plausible mounting, not the code's default
+COS, SIN = np.cos(THETA), np.sin(THETA)
+
+
+def _prm(**kw: float) -> np.ndarray:
+    return state.ModelParams(**kw).array()
+
+
+def _x(
+    v: float = 12.0,
+    a: float = 0.4,
+    s: float = 0.15,
+    k: float = 2e-4,
+    e: float = 0.02,
+    b: tuple[float, float, float] = (1e-3, -2e-3, 5e-4),
+) -> np.ndarray:
+    x = np.zeros(NX)
+    x[V], x[A], x[S], x[K], x[E] = v, a, s, k, e
+    x[B1], x[B2], x[B3] = b
+    return x
+
+
+def _numeric_jacobian(fn, x: np.ndarray, step: np.ndarray) -> np.ndarray:  # type: ignore[no-untyped-def]
+    cols = []
+    for i in range(len(x)):
+        hi, lo = x.copy(), x.copy()
+        hi[i] += step[i]
+        lo[i] -= step[i]
+        cols.append((np.asarray(fn(hi)) - np.asarray(fn(lo))) / (2.0 * step[i]))
+    return np.column_stack(cols)
+
+
+STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6])
+
+
+def test_params_array_follows_the_named_indices() -> None:
+    names = [f.name for f in dataclasses.fields(state.ModelParams)]
+    assert len(names) == state.NP
+    prm = state.ModelParams(jerk_psd=0.3, odometer_noise_mps=0.07, bias0_mps2=2e-3).array()
+    assert prm[state.P_QJ] == 0.3
+    assert prm[state.P_RODO] == 0.07
+    assert prm[state.P_B0] == 2e-3
+    assert prm[state.P_G] == G
+
+
+def test_f_is_the_motion_and_the_track() -> None:
+    x, dt = _x(), 0.01
+    # by hand: v + a dt = 12.004, S + K v dt = 0.15 + 2e-4 * 12 * 0.01 = 0.150024
+    out = process.f(x, dt)
+    assert out[V] == pytest.approx(12.004, abs=1e-12)
+    assert out[S] == pytest.approx(0.150024, abs=1e-12)
+    unchanged = [A, K, E, B1, B2, B3]
+    assert np.array_equal(out[unchanged], x[unchanged])
+
+
+def test_f_jacobian_is_the_finite_difference() -> None:
+    x, dt = _x(), 0.02
+    num = _numeric_jacobian(lambda y: process.f(y, dt), x, STEP)
+    np.testing.assert_allclose(process.jacobian(x, dt), num, rtol=0, atol=1e-9)
+
+
+def test_q_of_the_jerk_is_the_integral_of_white_jerk() -> None:
+    # Q_va = int_0^dt Phi(t) [0, 1]^T q [0, 1] Phi(t)^T dt, Phi = [[1, t], [0, 1]]
+    q, dt = 0.3, 0.05
+    t = np.linspace(0.0, dt, 20001)
+    qvv = np.trapezoid(q * t * t, t)
+    qva = np.trapezoid(q * t, t)
+    out = process.noise(_x(v=0.0), dt, _prm(jerk_psd=q))
+    assert out[V, V] == pytest.approx(qvv, rel=1e-6)
+    assert out[V, A] == pytest.approx(qva, rel=1e-6)
+    assert out[A, A] == pytest.approx(q * dt, rel=1e-12)
+
+
+def test_q_of_the_track_grows_with_distance_only() -> None:
+    prm = _prm(grade_psd_per_m=1e-8, grade_rate_psd_per_m=1e-7, wheel_scale_psd_per_m=1e-10)
+    at_rest = process.noise(_x(v=0.0), 1.0, prm)
+    assert at_rest[S, S] == at_rest[K, K] == at_rest[S, K] == at_rest[E, E] == 0.0
+    # 20 m travelled forwards or backwards: the same variances, S-K covariance signed by dx
+    ahead = process.noise(_x(v=20.0), 1.0, prm)
+    back = process.noise(_x(v=-20.0), 1.0, prm)
+    assert ahead[S, S] == pytest.approx(1e-8 * 20 + 1e-7 * 8000 / 3, rel=1e-12)
+    assert ahead[K, K] == pytest.approx(1e-7 * 20, rel=1e-12)
+    assert ahead[S, K] == pytest.approx(1e-7 * 400 / 2, rel=1e-12)
+    assert back[S, K] == -ahead[S, K]
+    assert ahead[E, E] == pytest.approx(1e-10 * 20, rel=1e-12)
+    assert np.all(np.linalg.eigvalsh(ahead) >= -1e-18)
+
+
+def _channels_reference(x: np.ndarray) -> np.ndarray:
+    """Plain numpy from the geometry: (u, w) rotated onto each channel's axis, plus bias."""
+    u = x[A] + x[S]
+    c = np.sqrt(G**2 - x[S] ** 2)
+    w = c + x[V] ** 2 * x[K] / c
+    return np.column_stack([COS, SIN]) @ np.array([u, w]) + x[[B1, B2, B3]]
+
+
+def test_channels_at_rest_on_a_gradient_read_g_sin_of_alpha_plus_theta() -> None:
+    alpha = math.atan(0.015)  # 15 permil
+    x = _x(v=0.0, a=0.0, s=G * math.sin(alpha), k=0.0, b=(0.0, 0.0, 0.0))
+    expected = G * np.sin(alpha + THETA)
+    np.testing.assert_allclose(measure.channels(x, COS, SIN, _prm()), expected, atol=1e-12)
+
+
+def test_channels_match_the_reference_and_their_jacobian() -> None:
+    prm = _prm()
+    for x in (_x(), _x(v=-30.0, s=-0.3, k=-5e-4), _x(v=0.0, k=0.0)):
+        np.testing.assert_allclose(
+            measure.channels(x, COS, SIN, prm), _channels_reference(x), atol=1e-12
+        )
+        num = _numeric_jacobian(lambda y: measure.channels(y, COS, SIN, prm), x, STEP)
+        np.testing.assert_allclose(
+            measure.channels_jacobian(x, COS, SIN, prm), num, rtol=1e-6, atol=1e-8
+        )
+
+
+def test_a_vertical_curve_presses_the_car_by_v2_over_r() -> None:
+    # level track, sag of radius 2000 m at 20 m/s: w = g + 400/2000 = g + 0.2
+    x = _x(v=20.0, a=0.0, s=0.0, k=G / 2000.0, b=(0.0, 0.0, 0.0))
+    y = measure.channels(x, np.array([0.0, 0.0, 1.0]), np.array([1.0, 1.0, 0.0]), _prm())
+    assert y[0] == pytest.approx(G + 0.2, abs=1e-12)
+
+
+def test_odometer_reads_the_scaled_delayed_speed_and_its_jacobian() -> None:
+    x, delta = _x(v=10.0, a=0.5, e=0.01), 0.08
+    # by hand: 1.01 * (10 - 0.08 * 0.5) = 10.0596
+    assert measure.odometer(x, delta)[0] == pytest.approx(10.0596, abs=1e-12)
+    num = _numeric_jacobian(lambda y: measure.odometer(y, delta), x, STEP)
+    np.testing.assert_allclose(measure.odometer_jacobian(x, delta), num, atol=1e-8)
+    assert measure.odometer_noise(_prm(odometer_noise_mps=0.04))[0, 0] == pytest.approx(0.0016)
+
+
+def test_channel_noise_is_white_plus_the_body_through_each_mounting() -> None:
+    prm = _prm(channel_noise_mps2=0.01, vibration_u_mps2=0.02, vibration_w_mps2=0.1)
+    cos, sin = np.array([1.0, 0.0, math.sqrt(0.5)]), np.array([0.0, 1.0, math.sqrt(0.5)])
+    r = measure.channels_noise(cos, sin, prm)
+    # by hand: along-track channel 1e-4 + 4e-4, normal 1e-4 + 1e-2, the 45 deg channel
+    # 1e-4 + (4e-4 + 1e-2) / 2; channels 1-2 share nothing, 1-3 share u / sqrt 2
+    assert r[0, 0] == pytest.approx(5e-4)
+    assert r[1, 1] == pytest.approx(1.01e-2)
+    assert r[2, 2] == pytest.approx(1e-4 + 5.2e-3)
+    assert r[0, 1] == pytest.approx(0.0, abs=1e-18)
+    assert r[0, 2] == pytest.approx(4e-4 * math.sqrt(0.5))
+
+
+def test_cholesky_inverse_is_the_inverse() -> None:
+    rng = np.random.default_rng(3)
+    m = rng.normal(size=(5, 5))
+    spd = m @ m.T + 5 * np.eye(5)
+    np.testing.assert_allclose(linalg.spd_inverse(spd) @ spd, np.eye(5), atol=1e-12)
+
+
+def test_scalar_update_is_the_textbook_one() -> None:
+    # prior N(2, 4), measurement 3 with variance 1: posterior mean 2 + 4/5, variance 4/5
+    x, p, nis = ekf.update(
+        np.array([2.0]),
+        np.array([[4.0]]),
+        np.array([3.0]),
+        np.array([2.0]),
+        np.eye(1),
+        np.eye(1),
+    )
+    assert x[0] == pytest.approx(2.8)
+    assert p[0, 0] == pytest.approx(0.8)
+    assert nis == pytest.approx(1.0 / 5.0)
+
+
+def test_joseph_update_equals_the_standard_form_for_the_optimal_gain() -> None:
+    rng = np.random.default_rng(5)
+    m = rng.normal(size=(NX, NX))
+    cov = m @ m.T + np.eye(NX)
+    jac = rng.normal(size=(3, NX))
+    r = np.diag([0.1, 0.2, 0.3])
+    x, z, hx = rng.normal(size=NX), rng.normal(size=3), rng.normal(size=3)
+    got_x, got_p, _ = ekf.update(x, cov, z, hx, jac, r)
+    s = jac @ cov @ jac.T + r
+    gain = cov @ jac.T @ np.linalg.inv(s)
+    np.testing.assert_allclose(got_x, x + gain @ (z - hx), atol=1e-10)
+    np.testing.assert_allclose(got_p, cov - gain @ s @ gain.T, atol=1e-10)
+
+
+def test_predict_propagates_the_covariance() -> None:
+    jac = np.array([[1.0, 0.5], [0.0, 1.0]])
+    cov = np.array([[1.0, 0.0], [0.0, 2.0]])
+    _, p = ekf.predict(np.zeros(2), jac, cov, np.eye(2) * 0.1)
+    # by hand: [[1 + 0.25 * 2 + 0.1, 0.5 * 2], [1, 2.1]]
+    np.testing.assert_allclose(p, [[1.6, 1.0], [1.0, 2.1]], atol=1e-15)
+
+
+def _constant_velocity(n: int, seed: int) -> tuple[np.ndarray, ...]:
+    """A constant-velocity track measured in position: F, Q, H, R, prior and data."""
+    dt, q, r = 0.5, 0.2, 0.3
+    f = np.array([[1.0, dt], [0.0, 1.0]])
+    qm = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+    h = np.array([[1.0, 0.0]])
+    rm = np.array([[r]])
+    x0, p0 = np.array([0.0, 1.0]), np.diag([4.0, 1.0])
+    rng = np.random.default_rng(seed)
+    truth = [rng.multivariate_normal(x0, p0)]
+    for _ in range(n - 1):
+        truth.append(f @ truth[-1] + rng.multivariate_normal(np.zeros(2), qm))
+    z = np.array([t[0] + rng.normal(0.0, math.sqrt(r)) for t in truth])
+    return f, qm, h, rm, x0, p0, z
+
+
+def _dense_posterior(f, qm, h, rm, x0, p0, z):  # type: ignore[no-untyped-def]
+    """The joint Gaussian posterior of all states at once: the information matrix of the
+    stacked states (prior + every process step + every measurement) solved densely."""
+    n, m = len(z), len(x0)
+    info = np.zeros((n * m, n * m))
+    vec = np.zeros(n * m)
+    pi, qi, ri = np.linalg.inv(p0), np.linalg.inv(qm), np.linalg.inv(rm)
+    info[:m, :m] += pi
+    vec[:m] += pi @ x0
+    for k in range(n):
+        sl = slice(k * m, (k + 1) * m)
+        info[sl, sl] += h.T @ ri @ h
+        vec[sl] += h.T @ ri @ np.array([z[k]])
+        if k:
+            # residual x_k - F x_k-1 with weight Q^-1
+            d = np.zeros((m, n * m))
+            d[:, sl] = np.eye(m)
+            d[:, (k - 1) * m : k * m] = -f
+            info += d.T @ qi @ d
+    cov = np.linalg.inv(info)
+    return (cov @ vec).reshape(n, m), np.array(
+        [cov[k * m : (k + 1) * m, k * m : (k + 1) * m] for k in range(n)]
+    )
+
+
+def test_rts_is_the_dense_least_squares_posterior_of_a_linear_model() -> None:
+    f, qm, h, rm, x0, p0, z = _constant_velocity(40, seed=11)
+    n = len(z)
+    xp, pp, xf, pf = np.zeros((n, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2)), np.zeros((n, 2, 2))
+    jac = np.zeros((n, 2, 2))
+    x, p = x0, p0
+    for k in range(n):
+        if k:
+            x, p = ekf.predict(f @ x, f, p, qm)
+            jac[k] = f
+        xp[k], pp[k] = x, p
+        x, p, _ = ekf.update(x, p, z[k : k + 1], h @ x, h, rm)
+        xf[k], pf[k] = x, p
+    xs, ps = smoother.rts(xp, pp, xf, pf, jac)
+    want_x, want_p = _dense_posterior(f, qm, h, rm, x0, p0, z)
+    np.testing.assert_allclose(xs, want_x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ps, want_p, rtol=0, atol=1e-10)
+    # the last smoothed state is the filtered one; earlier ones are more certain
+    assert np.array_equal(xs[-1], xf[-1])
+    assert np.all(ps[:-1, 0, 0] < pf[:-1, 0, 0])
+
+
+@pytest.mark.parametrize(
+    "fn,args",
+    [
+        (process.f, (_x(), 0.01)),
+        (process.jacobian, (_x(), 0.01)),
+        (process.noise, (_x(), 0.01, _prm())),
+        (measure.channels, (_x(), COS, SIN, _prm())),
+        (measure.channels_jacobian, (_x(), COS, SIN, _prm())),
+        (measure.odometer_jacobian, (_x(), 0.05)),
+    ],
+)
+def test_compiled_and_plain_python_agree(fn, args) -> None:  # type: ignore[no-untyped-def]
+    py = getattr(fn, "py_func", fn)  # NUMBA_DISABLE_JIT=1: there is no compiled twin
+    np.testing.assert_allclose(fn(*args), py(*args), rtol=1e-14, atol=1e-18)
+
+
+def test_products_are_numpy_s() -> None:
+    rng = np.random.default_rng(7)
+    a, b, x = rng.normal(size=(3, 5)), rng.normal(size=(5, 4)), rng.normal(size=5)
+    np.testing.assert_allclose(linalg.mm(a, b), a @ b, atol=1e-13)
+    np.testing.assert_allclose(linalg.mv(a, x), a @ x, atol=1e-13)
+    p = np.eye(5) + 0.1
+    np.testing.assert_allclose(linalg.sandwich(a, p), a @ p @ a.T, atol=1e-13)
