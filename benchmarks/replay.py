@@ -3,7 +3,7 @@
 All three logs hold the same frames: ``n`` frames of the 1 kHz virtual board.
 
 * The bench figure is the whole ``bench replay`` path without an output file:
-  ``replay(open_replay(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
+  ``replay(open_log(path), Config())`` -- read, decode, assemble, fuse, estimator, events,
   statistics. With the results CSV and with the Parquet file (pyarrow, in a writer thread
   of their own) it is reported separately (``replay candump + CSV``, ``+ Parquet``), against
   the same LogReader anchor: issue 17's target is the whole replay + CSV in <= 1/3 of the
@@ -59,10 +59,10 @@ def bench_replay(path: Path, csv: Path | None = None, parquet: Path | None = Non
     the results CSV and/or Parquet file written as `--csv` / `--parquet` write them."""
     from bench.config import Config
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
     from bench.sinks.tables import csv_sink, parquet_sink
+    from devices.formats import open_log
 
-    source = open_replay(path)
+    source = open_log(path)
     sinks = []
     if csv is not None:
         sinks.append(csv_sink(csv))
@@ -77,10 +77,10 @@ def bench_replay(path: Path, csv: Path | None = None, parquet: Path | None = Non
 
 
 def read_only(path: Path) -> int:
-    """The bench's reader alone: open_replay(path).batches() (what replay feeds the pipeline)."""
-    from bench.replay.sources import open_replay
+    """The bench's reader alone: open_log(path).batches() (what replay feeds the pipeline)."""
+    from devices.formats import open_log
 
-    source = open_replay(path)
+    source = open_log(path)
     try:
         return sum(len(b.frames) for b in source.batches(65536))
     finally:
@@ -278,9 +278,7 @@ def measure(
         ):
             dt, n = timed(partial(read_only, path), repeat)
             figures.append(
-                Figure(
-                    key, label, n / dt, "frames/s", detail=f"open_replay().batches(): {n} frames"
-                )
+                Figure(key, label, n / dt, "frames/s", detail=f"open_log().batches(): {n} frames")
             )
         dt, n = timed(lambda: pipeline_only(frames), repeat)
         figures.append(

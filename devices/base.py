@@ -18,6 +18,7 @@ from typing import BinaryIO, NamedTuple, TypeVar
 import numpy as np
 
 from devices.errors import BenchError
+from devices.paths import cannot_read
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 
@@ -122,10 +123,6 @@ class FileSource(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         pass
-
-
-def cannot_read(path: Path, exc: OSError) -> BenchError:
-    return BenchError(f"cannot read log {path}: {exc.strerror or exc}")
 
 
 class DiskFileSource(FileSource):

@@ -30,8 +30,9 @@ from pathlib import Path
 import can
 import numpy as np
 
-from devices.base import DiskFileSource, SourceBatch, SourceNotice, cannot_read
+from devices.base import DiskFileSource, SourceBatch, SourceNotice
 from devices.bus import frames_from_messages, one_line
+from devices.paths import cannot_read
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
 

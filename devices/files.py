@@ -1,11 +1,10 @@
-"""Open a recorded log as a :class:`FileSource`, chosen by the file's extension.
+r"""The readers of recorded logs other than candump's, as :class:`FileSource`\ s.
 
-* ``.log``  candump ``-L`` text, the fast vectorised reader (:mod:`devices.candump`)
 * ``.asc`` ``.blf`` ``.trc`` ``.csv``  python-can's LogReader, batched
 * ``.bin``  raw UART capture (COBS packets), ``t`` = NaN (the UART carries no time)
 
-The bench's own ``.mcap`` recordings are a bench format, read by :mod:`bench.mcaplog.source`;
-:func:`bench.replay.sources.open_replay` opens every replayable log, this module's and MCAP.
+(``.log``, candump ``-L`` text, is :mod:`devices.candump`'s.) :func:`devices.formats.open_log`
+opens every replayable log by its extension.
 
 Operator mistakes (missing file, unknown extension, unreadable or not-a-log file) are one
 :class:`BenchError` line at open time; corruption found while reading ends the stream
@@ -18,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import stat
 import struct
 import zlib
 from collections.abc import Generator, Iterator
@@ -38,66 +36,17 @@ from can.io.blf import (
     BLFReader,
 )
 
-from devices.base import DiskFileSource, FileSource, SourceBatch, SourceNotice, cannot_read
+from devices.base import DiskFileSource, SourceBatch, SourceNotice
 from devices.bus import frames_from_messages, one_line
-from devices.candump import UTF8_BOM, CandumpFileSource
+from devices.candump import UTF8_BOM
 from devices.errors import BenchError
-from devices.paths import file_kind
+from devices.paths import cannot_read, check_readable
 from devices.text_logs import CSV_HEADER, TEXT_FORMATS, TextFormat, read_text_log
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 from protocol.uart import MAX_BODY, deframe_bytes
 
 UART_CHUNK_BYTES = 4 << 20
-CAN_LOGREADER_SUFFIXES = (".asc", ".blf", ".trc", ".csv")
-SUFFIXES = (".log", *CAN_LOGREADER_SUFFIXES, ".bin")
-
-
-def check_readable(path: Path) -> int:
-    """Size of a readable regular file, else a one-line BenchError naming it.
-
-    A FIFO, a device (/dev/zero) or a socket is refused: a replay reads ahead, seeks and
-    reports progress against the size, and /dev/zero never ends."""
-    try:
-        if path.is_dir():
-            raise BenchError(f"cannot read log {path}: is a directory")
-        st = path.stat()
-        if not stat.S_ISREG(st.st_mode):
-            raise BenchError(
-                f"cannot read log {path}: not a regular file ({file_kind(st.st_mode)}); "
-                "copy the recording to a file first"
-            )
-        size = st.st_size
-        with path.open("rb"):
-            pass
-    except FileNotFoundError as exc:
-        raise BenchError(f"log file not found: {path}") from exc
-    except OSError as exc:
-        raise cannot_read(path, exc) from exc
-    return size
-
-
-def unknown_extension(path: Path, known: tuple[str, ...]) -> BenchError:
-    """The one-line error for a log whose extension no reader handles."""
-    suffix = path.suffix.lower()
-    return BenchError(
-        f"cannot read log {path}: unknown extension {suffix or '(none)'!r} ({' '.join(known)})"
-    )
-
-
-def open_log(path: str | os.PathLike[str], **kwargs: Any) -> FileSource:
-    """The FileSource for ``path`` by extension (case-insensitive). ``kwargs`` go to the
-    source (e.g. ``chunk_bytes``)."""
-    p = Path(path)
-    suffix = p.suffix.lower()
-    if suffix not in SUFFIXES:
-        raise unknown_extension(p, SUFFIXES)
-    check_readable(p)
-    if suffix == ".log":
-        return CandumpFileSource(p, **kwargs)
-    if suffix == ".bin":
-        return UartCaptureSource(p, **kwargs)
-    return CanLogReaderSource(p, **kwargs)
 
 
 class _GuardedBLFReader(BLFReader):
@@ -415,9 +364,4 @@ class UartCaptureSource(DiskFileSource):
             yield SourceBatch(frames[b : b + max_frames], errors if b == 0 else [])
 
 
-__all__ = [
-    "CanLogReaderSource",
-    "CandumpFileSource",
-    "UartCaptureSource",
-    "open_log",
-]
+__all__ = ["CanLogReaderSource", "UartCaptureSource"]

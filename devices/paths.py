@@ -46,6 +46,42 @@ def file_kind(mode: int) -> str:
     return "not a regular file"
 
 
+def cannot_read(path: Path, exc: OSError) -> BenchError:
+    return BenchError(f"cannot read log {path}: {exc.strerror or exc}")
+
+
+def check_readable(path: Path) -> int:
+    """Size of a readable regular file, else a one-line BenchError naming it.
+
+    A FIFO, a device (/dev/zero) or a socket is refused: a replay reads ahead, seeks and
+    reports progress against the size, and /dev/zero never ends."""
+    try:
+        if path.is_dir():
+            raise BenchError(f"cannot read log {path}: is a directory")
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise BenchError(
+                f"cannot read log {path}: not a regular file ({file_kind(st.st_mode)}); "
+                "copy the recording to a file first"
+            )
+        size = st.st_size
+        with path.open("rb"):
+            pass
+    except FileNotFoundError as exc:
+        raise BenchError(f"log file not found: {path}") from exc
+    except OSError as exc:
+        raise cannot_read(path, exc) from exc
+    return size
+
+
+def unknown_extension(path: Path, known: tuple[str, ...]) -> BenchError:
+    """The one-line error for a log whose extension no reader handles."""
+    suffix = path.suffix.lower()
+    return BenchError(
+        f"cannot read log {path}: unknown extension {suffix or '(none)'!r} ({' '.join(known)})"
+    )
+
+
 def regular_file_problem(path: str | os.PathLike[str]) -> str:
     """Why ``path`` cannot be read as a file ("" when it can: a regular file, through any
     symlinks). Asked before opening: opening a FIFO for reading waits for a writer."""
@@ -214,10 +250,13 @@ def write_file(path: str | os.PathLike[str], data: bytes | str) -> None:
 __all__ = [
     "STDOUT",
     "StagedFile",
+    "cannot_read",
     "check_clashes",
+    "check_readable",
     "file_kind",
     "regular_file_problem",
     "stageable",
     "staged",
+    "unknown_extension",
     "write_file",
 ]

@@ -27,7 +27,7 @@ from bench.records.columns import CSV_SCHEMA, RESULT_FIELDS, RESULTS, results_fr
 from bench.records.results import RESULT_DTYPE
 from bench.replay.run import replay
 from bench.sinks.tables import CsvFile, ParquetFile
-from devices.files import open_log
+from devices.formats import open_log
 from devices.writers import write_candump
 from tests.test_mcap_support import emulated
 

@@ -1,4 +1,4 @@
-"""open_log / open_replay: every format round trips; every bad input ends in a notice or a
+"""open_log / open_log: every format round trips; every bad input ends in a notice or a
 BenchError.
 
 Round trips compare with what python-can's own reader returns for the file (and with the
@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from bench.errors import BenchError
-from bench.replay.sources import open_replay
+from bench.mcaplog.source import McapFrameSource
 from devices.base import FileSource, SourceBatch
 from devices.bus import frames_from_messages
-from devices.files import UartCaptureSource, open_log
+from devices.files import UartCaptureSource
+from devices.formats import open_log
 from devices.writers import uart_bytes, write_candump, write_uart_bin, write_with_can_logger
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import Outcome
@@ -170,20 +171,24 @@ def test_unreadable_file(tmp_path: Path) -> None:
         path.chmod(0o600)
 
 
-def test_mcap_is_opened_by_the_bench_not_devices(tmp_path: Path) -> None:
-    (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n")
+def test_one_opener_for_every_log_the_bench_registering_mcap(tmp_path: Path) -> None:
+    """devices/ registers its formats, the bench adds MCAP: one unknown-extension line
+    names all seven, and a .mcap goes to the bench's reader."""
+    (tmp_path / "x.txt").write_text("hi")
     with pytest.raises(BenchError) as e:
-        open_log(tmp_path / "x.mcap")
-    assert "unknown extension '.mcap'" in one_line_error(e)
-    with pytest.raises(BenchError) as e:
-        open_replay(tmp_path / "x.txt")
-    assert ".mcap)" in one_line_error(e)
+        open_log(tmp_path / "x.txt")
+    assert one_line_error(e).endswith("(.log .asc .blf .trc .csv .bin .mcap)")
+    (tmp_path / "x.mcap").write_bytes(b"\x89MCAP0\r\n")  # a magic and nothing else
+    source = open_log(tmp_path / "x.mcap")
+    assert isinstance(source, McapFrameSource)
+    (notice,) = [n for b in source.batches() for n in b.notices]
+    assert notice.kind == "truncated"
 
 
 def drain(path: Path) -> list[SourceBatch] | BenchError:
     """Read a file to the end; BenchError is an accepted outcome, anything else fails."""
     try:
-        return list(open_replay(path).batches())
+        return list(open_log(path).batches())
     except BenchError as exc:
         assert "\n" not in str(exc)
         return exc

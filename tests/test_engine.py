@@ -135,7 +135,7 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
     """Snapshots bring only new rows; put together here they must be what the pipeline
     computes from the frames in the engine's log (replayed on its own)."""
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     plan = board_plan(tmp_path, seconds=6.0, speed=3.0)
     session = engine(plan)
@@ -147,7 +147,7 @@ def test_screen_rows_are_the_logged_run_bit_for_bit(tmp_path: Path, engine: Any)
     shown = session.snapshot(last=50_000)
     session.stop()
     assert drained["sent"] == session.report.frames_received > 0
-    expected = replay(open_replay(plan.mcap), CONFIG).results
+    expected = replay(open_log(plan.mcap), CONFIG).results
     assert 0 < len(shown.results) <= len(expected)
     assert shown.results.tobytes() == expected[: len(shown.results)].tobytes()
     assert session.recorder.files == [plan.mcap] and complete(plan.mcap)

@@ -21,7 +21,7 @@ from bench.cli import main
 from bench.config import Config
 from bench.records.columns import results_from_table
 from bench.replay.run import replay
-from devices.files import open_log
+from devices.formats import open_log
 from devices.writers import write_candump
 
 N_LOGS = 20

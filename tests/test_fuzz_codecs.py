@@ -126,7 +126,7 @@ def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
 def _read_all(path: Path) -> Any:
     from bench.mcaplog.reader import McapLog
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     try:
         with McapLog(path) as log:
@@ -134,7 +134,7 @@ def _read_all(path: Path) -> Any:
             log.metadata_dict()
             log.read_frames()
             log.verify()
-        source = open_replay(path)
+        source = open_log(path)
     except BenchError as exc:
         assert "\n" not in str(exc).strip()
         return None

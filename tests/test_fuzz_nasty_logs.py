@@ -328,7 +328,7 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
     """A single absurd receive time mid-log costs at most the samples around it."""
     from bench.config import Config
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
     from devices.writers import write_candump
 
     frames = _frames(3.0)
@@ -339,7 +339,7 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
         f["t"][len(f) // 2] = bad
         path = tmp_path / f"bad_{bad}.log"
         write_candump(path, f)
-        out = replay(open_replay(path), Config(), collect=True)
+        out = replay(open_log(path), Config(), collect=True)
         assert len(out.results) >= clean - 3, f"t={bad}: {len(out.results)} of {clean} samples"
         assert out.pipeline.stats.samples_lost <= 3, f"t={bad}: {out.pipeline.stats.samples_lost}"
 
@@ -347,11 +347,11 @@ def test_one_corrupt_timestamp_does_not_discard_the_log(tmp_path: Path) -> None:
 def replay_count(frames: np.ndarray, path: Path) -> int:
     from bench.config import Config
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
     from devices.writers import write_candump
 
     write_candump(path, frames)
-    return len(replay(open_replay(path), Config(), collect=True).results)
+    return len(replay(open_log(path), Config(), collect=True).results)
 
 
 @pytest.mark.parametrize(
@@ -363,13 +363,13 @@ def test_time_axis_glitch_costs_no_samples(tmp_path: Path, glitch: str) -> None:
     late, the glitch one counted event (a wild board time costs its one frame)."""
     from bench.config import Config
     from bench.replay.run import replay
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     frames = _frames(5.0)
     frames["t"] += 1.7e9
     path = tmp_path / f"{glitch}.log"
     path.write_text(candump_unclamped(time_axis_glitches(frames)[glitch]))
-    out = replay(open_replay(path), Config(), collect=True)
+    out = replay(open_log(path), Config(), collect=True)
     stats = out.pipeline.stats
     assert stats.frames == len(frames) == 3300
     assert len(out.results) == 1000 and stats.samples_lost == 0

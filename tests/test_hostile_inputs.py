@@ -128,7 +128,7 @@ def test_can_csv_log_still_replays(tmp_path, capsys, small_log):
     import can
 
     from devices.bus import messages_from_frames
-    from devices.files import open_log
+    from devices.formats import open_log
 
     frames = np.concatenate([b.frames for b in open_log(small_log).batches()])
     path = tmp_path / "can.csv"

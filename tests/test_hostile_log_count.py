@@ -35,9 +35,9 @@ def _limit_file_size() -> None:  # in the child, between fork and exec
 
 
 def _frames_in(path: Path) -> int:
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
-    return sum(len(b.frames) for b in open_replay(path).batches())
+    return sum(len(b.frames) for b in open_log(path).batches())
 
 
 @pytest.mark.parametrize("writer", ["thread", "process"])

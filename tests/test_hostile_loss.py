@@ -240,13 +240,13 @@ def test_mcap_reader_reports_a_shrunk_file_at_the_chunk_it_cannot_read(tmp_path)
 def test_a_device_log_that_changes_while_replayed_is_an_error(tmp_path, frames, suffix, change):
     """Read to its new end, the replay would pass another file's frames off as this one's."""
     from bench.errors import BenchError
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
     from devices.writers import write_candump, write_uart_bin, write_with_can_logger
 
     path = tmp_path / f"changing{suffix}"
     {".log": write_candump, ".bin": write_uart_bin}.get(suffix, write_with_can_logger)(path, frames)
     size = path.stat().st_size
-    src = open_replay(path, chunk_bytes=4096)
+    src = open_log(path, chunk_bytes=4096)
     batches = src.batches(max_frames=100)
     next(batches)  # reading has begun
     if change == "shrinks":

@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from bench.cli import main
-from devices.files import open_log
+from devices.formats import open_log
 from devices.writers import write_with_can_logger
 from protocol.frames import FRAME_DTYPE
 

@@ -82,7 +82,7 @@ def test_export_csv_is_the_live_csv(run_file, tmp_path: Path, capsys) -> None:
 
 
 def test_export_candump_reads_back(run_file, tmp_path: Path) -> None:
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     stream, path, _ = run_file
     out = tmp_path / "frames.log"
@@ -91,7 +91,7 @@ def test_export_candump_reads_back(run_file, tmp_path: Path) -> None:
     assert len(lines) == len(stream.frames)
     assert lines[0].startswith("(") and " can0 " in lines[0]
     assert any(" uart0 " in line for line in lines)
-    back = np.concatenate([b.frames for b in open_replay(out).batches()])
+    back = np.concatenate([b.frames for b in open_log(out).batches()])
     assert np.array_equal(back["id"], stream.frames["id"])
     assert np.array_equal(back["dlc"], stream.frames["dlc"])
     assert np.array_equal(back["data"], stream.frames["data"])

@@ -19,7 +19,7 @@ from bench.mcaplog import schemas as S
 from bench.mcaplog.reader import McapLog
 from bench.mcaplog.sink import McapSink
 from bench.mcaplog.source import McapFrameSource
-from bench.replay.sources import open_replay
+from devices.formats import open_log
 from tests.test_mcap_support import run_pipeline, synthetic_stream
 
 
@@ -183,10 +183,10 @@ def test_malformed_statistics_record_is_a_warning_not_a_traceback(
         assert any("statistics" in w.lower() for w in lg.warnings)
 
 
-def test_open_replay_of_foreign_file_uses_the_same_reader(tmp_path: Path) -> None:
+def test_open_log_of_foreign_file_uses_the_same_reader(tmp_path: Path) -> None:
     path = tmp_path / "foreign.mcap"
     foreign_file(path, 300, use_chunking=False)
-    src = open_replay(path)
+    src = open_log(path)
     try:
         assert sum(len(b.frames) for b in src.batches()) == 300
     finally:

@@ -109,11 +109,11 @@ def test_replay_of_the_mcap_gives_the_live_csv_byte_for_byte(synthetic) -> None:
     assert compare_results(recorded, replayed).identical
 
 
-def test_replay_through_open_replay(synthetic) -> None:
-    from bench.replay.sources import open_replay
+def test_replay_through_open_log(synthetic) -> None:
+    from devices.formats import open_log
 
     _, path, _, live_results, _ = synthetic
-    source = open_replay(path)
+    source = open_log(path)
     assert isinstance(source, McapFrameSource)
     replayed, _ = run_pipeline(list(source.batches()), Config())
     assert csv_text(replayed) == csv_text(live_results)
@@ -208,7 +208,7 @@ def test_every_emulator_fault_kind_over_uart_frames_in_file_equal_frames_receive
 
 
 def test_log_and_mcap_of_the_same_emulation_replay_identically(tmp_path: Path) -> None:
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
     from devices.writers import write_candump
 
     sim = emulated(14.0, seed=11)
@@ -217,7 +217,7 @@ def test_log_and_mcap_of_the_same_emulation_replay_identically(tmp_path: Path) -
     assert counts["frames"] == len(sim.frames) and counts["truth"] == len(sim.truth)
     outs = []
     for name in ("run.log", "run.mcap"):
-        src = open_replay(tmp_path / name)
+        src = open_log(tmp_path / name)
         res, _ = run_pipeline(list(src.batches()), Config())
         src.close()
         outs.append(csv_text(res))

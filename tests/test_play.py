@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from bench.replay.sources import open_replay
+from devices.formats import open_log
 
 SCENARIO = """
 description = "bench play: 2 s at 100 Hz"
@@ -51,7 +51,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def frames_of(path: Path) -> np.ndarray:
-    src = open_replay(path)
+    src = open_log(path)
     try:
         return np.concatenate([b.frames for b in src.batches()])
     finally:

@@ -512,11 +512,11 @@ def remeasure(outcome: RunOutcome, mcap_path: Path | None = None) -> list[Measur
 
     What the log cannot hold (emulator truth, fault record, frames sent, step windows) is
     taken from the original run; samples, events and frame counts come from the file."""
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     assert outcome.run is not None
     path = mcap_path or outcome.files["mcap"]
-    source = open_replay(path)
+    source = open_log(path)
     collector = Collector()
     pipeline = Pipeline(outcome.config)
     try:

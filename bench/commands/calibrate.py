@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.calibration import calibrate, read_table, record
     from bench.config import load_config
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     check_clashes(
         [("log", args.log), ("--config", args.config), ("--reference table", args.reference)],
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
         reference = "table"
     config = load_config(args.config)
     print(f"bench: starting from {config.announcement()}")
-    source = open_replay(args.log)
+    source = open_log(args.log)
     try:
         rec = record(source.batches(), config)
     finally:

@@ -71,8 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     # the pipeline only for this command, not every CLI start
     from bench.replay.run import no_frames, replay
-    from bench.replay.sources import open_replay
     from bench.sinks.tables import abort_all, close_all, csv_sink, parquet_sink, results_metadata
+    from devices.formats import open_log
 
     console = Console(stderr=True)
     check_clashes(
@@ -93,13 +93,13 @@ def run(args: argparse.Namespace) -> int:
 
         plan = load_plan(args.plan)
     if str(args.input).lower().endswith(".mcap"):
-        from devices.files import check_readable
+        from devices.paths import check_readable
 
         check_readable(Path(args.input))  # before its recorded config is read: not a FIFO
     config = replay_config(args.config, args.input)
     if args.compare:
         _check_recorded_results(args.input)
-    source = open_replay(args.input)
+    source = open_log(args.input)
     sinks = []
     try:
         if args.csv:

@@ -24,7 +24,8 @@ from rich.table import Table
 
 from bench.errors import BenchError
 from bench.fleet.summary import logs_table
-from bench.fleet.task import FORMATS, RESULTS_DIR, partition, replay_one
+from bench.fleet.task import RESULTS_DIR, partition, replay_one
+from devices.formats import log_formats
 
 LOGS_FILE = "logs.parquet"
 
@@ -52,7 +53,7 @@ def expand(patterns: list[str]) -> list[str]:
         if glob.has_magic(pat) or os.path.isdir(pat):
             where = os.path.join(glob.escape(pat), "**", "*") if os.path.isdir(pat) else pat
             matches = sorted(glob.glob(where, recursive=True))
-            matches = [m for m in matches if Path(m).suffix.lower() in FORMATS]
+            matches = [m for m in matches if Path(m).suffix.lower() in log_formats()]
         else:
             matches = [pat]
         for m in matches:

@@ -14,17 +14,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from devices.formats import log_formats
 from devices.paths import regular_file_problem
 
-FORMATS = {
-    ".log": "candump",
-    ".asc": "asc",
-    ".blf": "blf",
-    ".trc": "trc",
-    ".csv": "csv",
-    ".bin": "uart",
-    ".mcap": "mcap",
-}
 RESULTS_DIR = "results"
 PART_FILE = "part-0.parquet"
 
@@ -57,9 +49,10 @@ def replay_one(
     from bench import __version__
 
     start = time.perf_counter()
+    suffix = Path(path).suffix.lower()
     row: dict[str, Any] = {
         "path": str(path),
-        "format": FORMATS.get(Path(path).suffix.lower(), Path(path).suffix.lower().lstrip(".")),
+        "format": log_formats().get(suffix, suffix.lstrip(".")),
         "bench_version": __version__,
     }
     try:
@@ -117,11 +110,11 @@ def _config_for(path: str, config_toml: str | None) -> Any:
 def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
     from bench.fleet.summary import SummarySink, summary_row
     from bench.replay.run import no_frames, replay
-    from bench.replay.sources import open_replay
     from bench.sinks.tables import abort_all, parquet_sink, results_metadata
+    from devices.formats import open_log
 
     config = _config_for(path, config_toml)
-    source = open_replay(path)
+    source = open_log(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         summary = SummarySink()

@@ -335,11 +335,11 @@ def replay_setup(
     path: str | Path, config: Config, *, speed: float | None = 1.0, paused: bool = False
 ) -> LiveSetup:
     """A LiveSetup whose source plays the log ``path`` (see :class:`ReplaySource`)."""
-    from bench.replay.sources import open_replay
+    from devices.formats import open_log
 
     p = Path(path)
     source = ReplaySource(
-        open_replay(p),
+        open_log(p),
         speed=speed,
         paused=paused,
         step_s=1.0 / config.sample_rate_hz,

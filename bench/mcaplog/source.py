@@ -17,6 +17,18 @@ from bench.mcaplog import schemas as S
 from bench.mcaplog.filebytes import FileChanged
 from bench.mcaplog.reader import McapLog
 from devices.base import FileSource, SourceBatch, SourceNotice
+from devices.bus import one_line
+
+
+def open_mcap(path: Path, **kwargs: object) -> McapFrameSource:
+    """The opener :func:`devices.formats.open_log` calls for ``.mcap``: any failure of
+    the reader on a damaged file is one BenchError line."""
+    try:
+        return McapFrameSource(path, **kwargs)  # type: ignore[arg-type]  # batching: str
+    except BenchError:
+        raise
+    except Exception as exc:
+        raise BenchError(f"cannot read {path}: {one_line(exc)}") from exc
 
 
 class McapFrameSource(FileSource):
@@ -26,7 +38,7 @@ class McapFrameSource(FileSource):
         """``batching``: "merge" (default, fast: chunks merged into large batches; the
         pipeline's output does not depend on batching) or "recorded" (the live run's own
         batches, for forensic exactness). Other options are meant for other file kinds
-        (bench.replay.sources.open_replay passes them all) and do not apply here."""
+        (devices.formats.open_log passes them all) and do not apply here."""
         if batching not in ("merge", "recorded"):
             raise ValueError(f"batching must be 'merge' or 'recorded', not {batching!r}")
         self.batching = batching

@@ -3,7 +3,7 @@
 A HIL bench replays a recorded board's traffic into the unit that consumes it. python-can's
 ``can.player`` does that for the formats python-can reads; the bench reads more (its own
 MCAP, candump text with its quirks, damaged files), so the frames come from the bench's
-log opener (:func:`bench.replay.sources.open_replay`) and go through python-can's own pacing
+log opener (:func:`devices.formats.open_log`) and go through python-can's own pacing
 (:class:`can.MessageSync`, the reference ``can.player`` uses) onto any python-can bus.
 
 Play is on the caller's thread: a signal handler that raises (Ctrl-C, SIGTERM) stops it at
@@ -26,8 +26,8 @@ import numpy as np
 
 from bench.errors import BenchError
 from bench.replay.prefetch import prefetch
-from bench.replay.sources import open_replay
 from devices.bus import messages_from_frames, one_line
+from devices.formats import open_log
 from protocol.records import FLAG_ERROR
 
 BATCH_FRAMES = 4096
@@ -63,7 +63,7 @@ class LogCounts:
 
 
 def _batches(path: Path) -> Iterator[Any]:
-    source = open_replay(path)
+    source = open_log(path)
     try:
         yield from source.batches(BATCH_FRAMES)
     finally:

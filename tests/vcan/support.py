@@ -277,7 +277,7 @@ def read_log_frames(path: Path) -> np.ndarray:
 
         with McapLog(path) as lg:
             return lg.read_frames()[0]
-    from devices.files import open_log
+    from devices.formats import open_log
 
     src = open_log(path)
     try:
