@@ -246,3 +246,22 @@ def test_status_line_says_time_frames_sent_and_in_the_log_and_errors(
     sent = [int(m[2]) for m in shown if m]
     times = [float(m[1]) for m in shown if m]
     assert sent == sorted(sent) and times == sorted(times) and sent[-1] <= n
+
+
+def test_an_interrupt_kept_on_the_player_ends_play_before_the_next_frame(
+    logs: dict[str, Path],
+) -> None:
+    """The play command's signal handler keeps its Stopped on the player as well as raising
+    it: a raise that lands in a finaliser is lost, and a looping play would never end."""
+    from bench.replay.bus_player import BusPlayer, Selection, count_log
+
+    path = logs[".log"]
+    bus = can.Bus(interface="virtual", channel=f"play-{uuid.uuid4().hex[:8]}")
+    try:
+        player = BusPlayer(path, bus, count_log(path, Selection()), rate=20.0, loop=True)
+        player.interrupt = KeyboardInterrupt("kept")
+        with pytest.raises(KeyboardInterrupt, match="kept"):
+            player.play()
+    finally:
+        bus.shutdown()
+    assert player.sent == 0 and player.passes == 1

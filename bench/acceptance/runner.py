@@ -58,6 +58,22 @@ class Stopped(KeyboardInterrupt):
 
 
 @dataclass
+class StopRequest:
+    """The reason a signal gave for ending the run, kept as well as raised.
+
+    Python swallows an exception that a signal handler raises while a finaliser runs (a
+    ``__del__`` the garbage collector calls: it prints "Exception ignored in" and goes on),
+    and a run that missed its SIGTERM that way went on to its end. The run's loops therefore
+    also :meth:`check` the request, and a run that finished regardless still ends in error."""
+
+    reason: str | None = None
+
+    def check(self) -> None:
+        if self.reason is not None:
+            raise Stopped(self.reason)
+
+
+@dataclass
 class Options:
     out_dir: Path
     realtime: bool = False
@@ -71,6 +87,7 @@ class Options:
     plots: bool = True
     command: str = field(default_factory=lambda: " ".join(sys.argv))
     context: RunContext = field(default_factory=RunContext)  # unit, station, operator
+    stop: StopRequest = field(default_factory=StopRequest)  # set by SIGTERM, SIGHUP
 
 
 def has_live_source(args: argparse.Namespace | None) -> bool:
@@ -258,6 +275,7 @@ def _run_emulated(
     batches = uart_batches(sim) if plan.link == "uart" else can_batches(sim.frames)
     try:
         for step in run_steps(pipeline, batches):
+            opts.stop.check()
             sink.write(step)
             collector.write(step)
     finally:
@@ -299,38 +317,43 @@ def _run_live(
     )
     mcap_path = opts.out_dir / "run.mcap"
     sink = McapSink(mcap_path, config, meta, _attachments(plan, config))
-    collector = Collector()
-    runner = LiveRunner(setup.source, config, [sink, collector], description=setup.description)
-    runner.recording = sink
-    n_ref = int(sim.scenario.counter0) if sim is not None else None
-    rate = float(sim.scenario.sample_rate_hz) if sim is not None else float(config.sample_rate_hz)
+    started = False
+    try:  # from here a signal's Stopped stops the runner, the board and the log
+        collector = Collector()
+        runner = LiveRunner(setup.source, config, [sink, collector], description=setup.description)
+        runner.recording = sink
+        n_ref = int(sim.scenario.counter0) if sim is not None else None
+        rate = (
+            float(sim.scenario.sample_rate_hz) if sim is not None else float(config.sample_rate_hz)
+        )
 
-    def run_time() -> float | None:
-        if collector.last_n is None:
-            return None
-        ref = n_ref if n_ref is not None else collector.first_n
-        assert ref is not None  # first_n is set with last_n
-        return (collector.last_n - ref) / rate
+        def run_time() -> float | None:
+            if collector.last_n is None:
+                return None
+            ref = n_ref if n_ref is not None else collector.first_n
+            assert ref is not None  # first_n is set with last_n
+            return (collector.last_n - ref) / rate
 
-    def wait_until(t_s: float, what: str) -> None:
-        while True:
-            now = run_time()
-            if now is not None and now >= t_s:
-                return
-            if player is not None and player.done and time.monotonic() - collector.updated > 1:
-                raise BenchError(f"the virtual board finished before {what} ({t_s:g} s)")
-            if time.monotonic() - collector.updated > SILENCE_S:
-                raise BenchError(f"no sample from the board for {SILENCE_S:g} s ({what})")
-            if runner.error:
-                raise BenchError(runner.error)
-            time.sleep(0.02)
+        def wait_until(t_s: float, what: str) -> None:
+            while True:
+                opts.stop.check()
+                now = run_time()
+                if now is not None and now >= t_s:
+                    return
+                if player is not None and player.done and time.monotonic() - collector.updated > 1:
+                    raise BenchError(f"the virtual board finished before {what} ({t_s:g} s)")
+                if time.monotonic() - collector.updated > SILENCE_S:
+                    raise BenchError(f"no sample from the board for {SILENCE_S:g} s ({what})")
+                if runner.error:
+                    raise BenchError(runner.error)
+                time.sleep(0.02)
 
-    windows: list[StepWindow] = []
-    unattended = opts.yes or opts.answers is not None
-    prev_end = 0.0
-    runner.start()
-    setup.start_board()
-    try:
+        windows: list[StepWindow] = []
+        unattended = opts.yes or opts.answers is not None
+        prev_end = 0.0
+        runner.start()
+        started = True
+        setup.start_board()
         collector.updated = time.monotonic()
         for s in plan.steps:
             if s.at_s is not None:
@@ -356,6 +379,7 @@ def _run_live(
             wait_until(plan.duration_s, "the plan's duration_s")
         if player is not None and (not plan.steps or mode == "realtime"):
             while not player.done:
+                opts.stop.check()
                 if runner.error:
                     raise BenchError(runner.error)
                 time.sleep(0.05)
@@ -364,7 +388,10 @@ def _run_live(
             if not player.done:
                 player.stop()
             time.sleep(DRAIN_S)  # frames still crossing the virtual bus are the run's too
-        runner.stop()
+        if started:
+            runner.stop()
+        else:
+            sink.close()  # the runner closes its sinks; one that never ran does not
         setup.close()
     if runner.error:
         raise BenchError(runner.error)
@@ -476,6 +503,7 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         else:
             run, source = _run_live(plan, config, opts, info, setup, mode)
         measurements = [run_check(c, run) for c in plan.checks]
+        opts.stop.check()  # a signal whose raise a finaliser swallowed
     except KeyboardInterrupt as exc:
         error = str(exc) if isinstance(exc, Stopped) else "interrupted by the operator"
     except BenchError as exc:

@@ -26,6 +26,7 @@ from bench.sinks.paths import check_output_dir, describe_os_error
 if TYPE_CHECKING:
     from bench.acceptance.outcome import RunOutcome
     from bench.acceptance.plan import Plan
+    from bench.acceptance.runner import StopRequest
     from bench.acceptance.signoff import RunContext
 
 _STYLE = {"pass": "green", "warn": "yellow", "fail": "red", "error": "magenta", "skip": "dim"}
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
 
     prepare(lambda m: err.print(f"bench: {m}", highlight=False, soft_wrap=True))
     try:
-        with stopped_by_signals():
+        with stopped_by_signals(opts.stop):
             outcome = run_plan(plan, opts)
     except OSError as exc:  # a full disk or a vanished folder: an error, not a fail verdict
         where = exc.filename or args.out
@@ -194,15 +195,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 @contextlib.contextmanager
-def stopped_by_signals() -> Iterator[None]:
+def stopped_by_signals(request: StopRequest) -> Iterator[None]:
     """SIGTERM and SIGHUP end the run as Ctrl-C does (the records say so and are written);
-    a second signal while they are written waits for them."""
-    from bench.acceptance.runner import Stopped
+    a second signal while they are written waits for them. The reason is kept in
+    ``request`` too, for the run's loops to find if the raise was swallowed."""
 
     def stop(signum: int, frame: FrameType | None) -> None:
         for sig in old:
             signal.signal(sig, signal.SIG_IGN)
-        raise Stopped(f"stopped by {signal.Signals(signum).name}")
+        request.reason = f"stopped by {signal.Signals(signum).name}"
+        request.check()
 
     sigs = [signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
     old = {sig: signal.signal(sig, stop) for sig in sigs}

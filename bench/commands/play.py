@@ -102,7 +102,12 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     status = _Status(player, sys.stderr.isatty(), args.status_every, quiet=args.quiet)
-    old = {s: signal.signal(s, _raise_stopped) for s in _SIGNALS}
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        player.interrupt = Stopped(signum)  # kept for the player, should the raise be lost
+        raise player.interrupt
+
+    old = {s: signal.signal(s, stop) for s in _SIGNALS}
     stopped: Stopped | None = None
     status.start()
     try:
@@ -123,10 +128,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 _SIGNALS = [signal.SIGINT, signal.SIGTERM, *([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])]
-
-
-def _raise_stopped(signum: int, frame: FrameType | None) -> None:
-    raise Stopped(signum)
 
 
 def _left(counts: Any) -> str:

@@ -139,6 +139,9 @@ class BusPlayer:
         self.errors = 0
         self.last_error = ""
         self.position_s = 0.0  # log time of the last frame handed to the bus, from the start
+        # set by a signal handler besides raising it: a raise that lands in a finaliser is
+        # swallowed by Python, and play would go on to the end (or for ever with loop)
+        self.interrupt: BaseException | None = None
 
     def play(self) -> None:
         """Until the log (each pass of it, with ``loop``) has been played."""
@@ -174,6 +177,8 @@ class BusPlayer:
         # MessageSync starts its clock when it starts: with the first message in hand, not
         # before the first read (which would send the first frames late, then in a burst)
         for msg in can.MessageSync(itertools.chain([first], messages), timestamps=True, skip=0):
+            if self.interrupt is not None:
+                raise self.interrupt
             self.position_s = msg.timestamp * rate
             try:
                 send(msg, timeout=SEND_TIMEOUT_S)
