@@ -102,20 +102,6 @@ def solve_one(a: Row, code: int, geo: Geometry) -> tuple[float, float]:
     return combine(pu, *a), combine(pw, *a)
 
 
-def signed_gradient(u: np.ndarray, w: np.ndarray, a_ref: np.ndarray) -> np.ndarray:
-    """1000 * tan(atan2(u - a_ref, w)) = 1000 * (u - a_ref) / w per mille; NaN unless w > 0."""
-    out = np.subtract(u, a_ref)
-    np.multiply(1000.0, out, out=out)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        np.divide(out, w, out=out)
-    np.copyto(out, np.nan, where=~(w > 0.0))
-    return out
-
-
-def signed_gradient_one(u: float, w: float, a_ref: float) -> float:
-    return 1000.0 * (u - a_ref) / w if w > 0.0 else math.nan
-
-
 def magnitude_gradient(w: np.ndarray, g: float) -> np.ndarray:
     """Unsigned 1000 * tan(arccos(w/g)) written as 1000 * sqrt((1-c)(1+c)) / c, c = w/g
     clamped to 1 (noise); NaN unless c > 0. No a_ref needed: the analogue of the reference."""
