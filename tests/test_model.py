@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bench.fusion.model import ekf, linalg, measure, process, smoother, state
-from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, S, V
+from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, L, S, V
 
 G = 9.80665
 THETA = np.radians([-30.0, 0.0, 30.0])  # a plausible mounting, not the code's default
@@ -30,10 +30,12 @@ def _x(
     k: float = 2e-4,
     e: float = 0.02,
     b: tuple[float, float, float] = (1e-3, -2e-3, 5e-4),
+    lat: float = 0.0,
 ) -> np.ndarray:
     x = np.zeros(NX)
     x[V], x[A], x[S], x[K], x[E] = v, a, s, k, e
     x[B1], x[B2], x[B3] = b
+    x[L] = lat
     return x
 
 
@@ -47,7 +49,7 @@ def _numeric_jacobian(fn, x: np.ndarray, step: np.ndarray) -> np.ndarray:  # typ
     return np.column_stack(cols)
 
 
-STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6])
+STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5])
 
 
 def test_params_array_follows_the_named_indices() -> None:
@@ -66,7 +68,7 @@ def test_f_is_the_motion_and_the_track() -> None:
     out = process.f(x, dt)
     assert out[V] == pytest.approx(12.004, abs=1e-12)
     assert out[S] == pytest.approx(0.150024, abs=1e-12)
-    unchanged = [A, K, E, B1, B2, B3]
+    unchanged = [A, K, E, B1, B2, B3, L]
     assert np.array_equal(out[unchanged], x[unchanged])
 
 
@@ -101,6 +103,14 @@ def test_q_of_the_track_grows_with_distance_only() -> None:
     assert back[S, K] == -ahead[S, K]
     assert ahead[E, E] == pytest.approx(1e-10 * 20, rel=1e-12)
     assert np.all(np.linalg.eigvalsh(ahead) >= -1e-18)
+
+
+def test_q_of_the_biases_and_the_latency_grows_with_time() -> None:
+    prm = _prm(bias_psd=1e-9, latency_psd=1e-6)
+    at_rest = process.noise(_x(v=0.0), 2.0, prm)
+    for b in (B1, B2, B3):
+        assert at_rest[b, b] == pytest.approx(2e-9, rel=1e-12)
+    assert at_rest[L, L] == pytest.approx(2e-6, rel=1e-12)
 
 
 def _channels_reference(x: np.ndarray) -> np.ndarray:
@@ -143,13 +153,19 @@ def test_odometer_reads_the_scaled_delayed_speed_and_its_jacobian() -> None:
     assert measure.odometer(x, delta)[0] == pytest.approx(10.0596, abs=1e-12)
     num = _numeric_jacobian(lambda y: measure.odometer(y, delta), x, STEP)
     np.testing.assert_allclose(measure.odometer_jacobian(x, delta), num, atol=1e-8)
+    # a latency of 20 ms beyond the clock mapping: 1.01 * (10 - 0.1 * 0.5) = 10.04950
+    late = _x(v=10.0, a=0.5, e=0.01, lat=0.02)
+    assert measure.odometer(late, delta)[0] == pytest.approx(10.0495, abs=1e-12)
+    num = _numeric_jacobian(lambda y: measure.odometer(y, delta), late, STEP)
+    np.testing.assert_allclose(measure.odometer_jacobian(late, delta), num, atol=1e-8)
+    assert measure.odometer_jacobian(late, delta)[0, L] == pytest.approx(-1.01 * 0.5)
     assert measure.odometer_noise(_prm(odometer_noise_mps=0.04))[0, 0] == pytest.approx(0.0016)
 
 
 def test_channel_noise_is_white_plus_the_body_through_each_mounting() -> None:
     prm = _prm(channel_noise_mps2=0.01, vibration_u_mps2=0.02, vibration_w_mps2=0.1)
     cos, sin = np.array([1.0, 0.0, math.sqrt(0.5)]), np.array([0.0, 1.0, math.sqrt(0.5)])
-    r = measure.channels_noise(cos, sin, prm)
+    r = measure.channels_noise(cos, sin, prm, 0.0, 0.0)
     # by hand: along-track channel 1e-4 + 4e-4, normal 1e-4 + 1e-2, the 45 deg channel
     # 1e-4 + (4e-4 + 1e-2) / 2; channels 1-2 share nothing, 1-3 share u / sqrt 2
     assert r[0, 0] == pytest.approx(5e-4)
@@ -157,6 +173,10 @@ def test_channel_noise_is_white_plus_the_body_through_each_mounting() -> None:
     assert r[2, 2] == pytest.approx(1e-4 + 5.2e-3)
     assert r[0, 1] == pytest.approx(0.0, abs=1e-18)
     assert r[0, 2] == pytest.approx(4e-4 * math.sqrt(0.5))
+    # a learnt vibration above the floors takes their place: 0.05 m/s^2 along the track
+    learnt = measure.channels_noise(cos, sin, prm, 2.5e-3, 0.0)
+    assert learnt[0, 0] == pytest.approx(1e-4 + 2.5e-3)
+    assert learnt[1, 1] == pytest.approx(1.01e-2)
 
 
 def test_cholesky_inverse_is_the_inverse() -> None:

@@ -64,12 +64,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="with --compare: judge the acceptance plan's checks (file or shipped name) on "
         "both sides",
     )
+    p.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also write gradient_smoothed_permil and its sigma: the explicit model's RTS "
+        "smoother over the whole log (reads the log twice); the other columns are unchanged",
+    )
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar or summary")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     # the pipeline only for this command, not every CLI start
+    from bench.records.columns import RESULTS, SMOOTHED
     from bench.replay.run import no_frames, replay
     from bench.sinks.tables import abort_all, close_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
@@ -85,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
         check_output_file(args.parquet, "Parquet file")
     if args.plan and not args.compare:
         raise BenchError("--plan judges a plan's checks both ways: it needs --compare")
+    if args.smooth and args.compare:
+        raise BenchError("--compare judges the filtered results: it does not take --smooth")
     if args.compare and not str(args.input).lower().endswith(".mcap"):
         raise BenchError("--compare needs an .mcap input (only MCAP logs hold recorded results)")
     plan = None
@@ -99,19 +108,24 @@ def run(args: argparse.Namespace) -> int:
     config = replay_config(args.config, args.input)
     if args.compare:
         _check_recorded_results(args.input)
+    from bench.pipeline.warmup import prepare
+
+    smoothed = None
+    if args.smooth:
+        smoothed = _smoothing_pass(args.input, config)
     source = open_log(args.input)
     sinks = []
+    layout = SMOOTHED if args.smooth else RESULTS
     try:
         if args.csv:
-            sinks.append(csv_sink(args.csv))
+            sinks.append(csv_sink(args.csv, layout=layout))
         if args.parquet:
-            sinks.append(parquet_sink(args.parquet, results_metadata(config, args.input)))
+            meta = results_metadata(config, args.input)
+            sinks.append(parquet_sink(args.parquet, meta, layout=layout))
     except BaseException:
         abort_all(sinks)
         source.close()
         raise
-    from bench.pipeline.warmup import prepare
-
     prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
@@ -121,6 +135,12 @@ def run(args: argparse.Namespace) -> int:
 
         collected = Collector()
     feed: list[Any] = [*sinks, collected] if collected is not None else list(sinks)
+    joined = None
+    if smoothed is not None:
+        from bench.replay.smooth import SmoothedSinks
+
+        joined = SmoothedSinks(sinks, smoothed)
+        feed = [joined]
     try:
         if show:
             columns = (
@@ -143,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
             outcome = replay(source, config, feed, collect=False)
         if not outcome.pipeline.stats.frames:
             raise no_frames(args.input, outcome.notices)
+        if joined is not None:
+            joined.check_complete()
     except BaseException:
         abort_all(sinks)  # the first failure is the one to tell; no output is left
         raise
@@ -152,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
         source.close()
     if not args.quiet:  # plain lines: a console width must not break them
         print(f"bench: {config.announcement()}", file=sys.stderr)
+        if smoothed is not None:
+            print(f"bench: {smoothed.describe()}", file=sys.stderr)
         hint = replay_hint(config, args.input)
         if hint:
             print(f"bench: {hint}", file=sys.stderr)
@@ -170,6 +194,18 @@ def run(args: argparse.Namespace) -> int:
         after = Side(label, config, collected.results(), collected.events(), outcome.pipeline.stats)
         return _compare(args, after, plan, Console())
     return 0
+
+
+def _smoothing_pass(path: str, config: Config) -> Any:
+    """The smoother's reading of the log (bench.replay.smooth), before the replay proper."""
+    from bench.replay.smooth import smoothing_pass
+    from devices.formats import open_log
+
+    source = open_log(path)
+    try:
+        return smoothing_pass(source, config)
+    finally:
+        source.close()
 
 
 def _check_recorded_results(path: str) -> None:

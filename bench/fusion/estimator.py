@@ -13,6 +13,8 @@ stage carries its state and uses element-wise or exact operations only).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from bench.config import Config
@@ -38,6 +40,9 @@ from bench.fusion.least_squares import (
 from bench.fusion.speed_ref import ReferenceAcceleration
 from bench.records.events import EVENT_DTYPE
 from protocol.layout import TICK_S
+
+if TYPE_CHECKING:
+    from bench.fusion.model.log import ModelLog
 
 ESTIMATE_DTYPE = np.dtype(
     [
@@ -115,6 +120,7 @@ class Estimator:
         self.filter = JointFilter(config, self.geo)
         self._was_latched = [False, False, False]
         self._named = -1  # the channel the current residual alarm named (-1: none)
+        self.log: ModelLog | None = None  # keeps the filter's inputs for the smoother
 
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
@@ -168,6 +174,8 @@ class Estimator:
             out["degraded"] = code != FULL
             out["excluded"] = _EXCLUDED_OF_MASK[code]
         starts = self._exclusion_starts(latched, reason)
+        if self.log is not None:
+            self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied)
         fo = self.filter.push(ticks * TICK_S, u, w, code, residual, starts, self.a_ref.applied)
         out["gradient_signed"] = fo.gradient
         out["gradient_sigma"] = fo.sigma
@@ -307,6 +315,9 @@ class Estimator:
                 np.array(still, dtype=np.bool_),
             )
             applied.clear()
+        if self.log is not None:
+            b_l = np.array(ticks_l, dtype=np.int64) * TICK_S
+            self.log.add(b_l, np.array(acc_l, dtype=np.float64), np.array(mask_l), frames)
         fo = self.filter.push(
             np.array(ticks_l, dtype=np.int64) * TICK_S,
             np.array(u_l),

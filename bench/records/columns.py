@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from bench.records.events import EVENT_DTYPE
-from bench.records.results import RESULT_DTYPE, UNIX_TIME_FROM
+from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE, UNIX_TIME_FROM
 
 UTC_COLUMN = "utc"
 
@@ -78,6 +78,17 @@ RESULT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
         ("gradient_sigma_permil",),
         "permil",
         "1-sigma of the estimator's gradient (given also while the gradient is withheld)",
+    ),
+    "gradient_smoothed": (
+        ("gradient_smoothed_permil",),
+        "permil",
+        "the explicit model's gradient smoothed over the whole log (RTS, `replay --smooth`); "
+        "null when withheld (sigma above the limit) or fewer than two channels",
+    ),
+    "gradient_smoothed_sigma": (
+        ("gradient_smoothed_sigma_permil",),
+        "permil",
+        "1-sigma of the smoothed gradient (given also while it is withheld)",
     ),
     "odometer_suspect": (
         ("odometer_suspect",),
@@ -222,12 +233,21 @@ CSV_LEFT_OUT = frozenset(
 )
 """Result fields the CSV leaves out (raw codes and the estimator's internals: in the Parquet
 file); every other field, new ones included, is a CSV column."""
-CSV_SCHEMA = pa.schema(
-    [f for f, c in zip(RESULTS.schema, RESULTS.aligned, strict=True)
-     if c is None or c.field not in CSV_LEFT_OUT],
-    metadata=RESULTS.schema.metadata,
-)  # fmt: skip
+
+
+def csv_schema(layout: Layout) -> pa.Schema:
+    """The CSV columns of a results layout: its Parquet columns less :data:`CSV_LEFT_OUT`."""
+    return pa.schema(
+        [f for f, c in zip(layout.schema, layout.aligned, strict=True)
+         if c is None or c.field not in CSV_LEFT_OUT],
+        metadata=layout.schema.metadata,
+    )  # fmt: skip
+
+
+CSV_SCHEMA = csv_schema(RESULTS)
 """The results CSV's columns (in the Parquet file's order)."""
+SMOOTHED = Layout(SMOOTHED_DTYPE, RESULT_FIELDS, utc_after="time_s")
+"""The results with the smoother's two columns (`bench replay --smooth`)."""
 EVENTS = Layout(EVENT_DTYPE, EVENT_FIELDS, utc_after="receive_time_s")
 
 

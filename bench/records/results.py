@@ -35,6 +35,15 @@ RESULT_DTYPE = np.dtype(
     ]
 )
 
+SMOOTHED_DTYPE = np.dtype(
+    [
+        *RESULT_DTYPE.descr,
+        ("gradient_smoothed", "<f8"),  # the model's RTS smoother, per mille; NaN when withheld
+        ("gradient_smoothed_sigma", "<f8"),  # its 1-sigma, per mille
+    ]
+)
+"""The results with the smoother's columns (`bench replay --smooth`)."""
+
 UNIX_TIME_FROM = 946_684_800.0
 """Receive times ``t`` at or after 2000-01-01T00:00:00Z are Unix time (a wall clock stamped
 the frame); smaller ones are relative to the start of a recording (an emulator's run time)."""

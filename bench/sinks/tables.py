@@ -35,7 +35,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from bench.records.columns import CSV_SCHEMA, RESULTS, Layout
+from bench.records.columns import CSV_SCHEMA, RESULTS, Layout, csv_schema
 from bench.sinks.paths import STDOUT, check_output_file, describe_os_error
 from devices.paths import StagedFile, stageable
 
@@ -384,9 +384,15 @@ class TableSink:
 
 
 def csv_sink(
-    target: str | Path, *, live: bool = False, raise_errors: bool | None = None, **kw: Any
+    target: str | Path,
+    *,
+    live: bool = False,
+    raise_errors: bool | None = None,
+    layout: Layout = RESULTS,
+    **kw: Any,
 ) -> TableSink:
-    """The results CSV of a replay (``live=False``) or a live run, path checked first."""
+    """The results CSV of a replay (``live=False``) or a live run, path checked first;
+    ``layout``: the rows' layout (:data:`~bench.records.columns.SMOOTHED` for --smooth)."""
     check_output_file(target, "CSV")
     cpus = None
     if live:
@@ -394,8 +400,11 @@ def csv_sink(
 
         cpus = other_cpus()
     staged = StagedFile(target) if stageable(target) else None
+    if layout is not RESULTS:
+        kw["schema"] = csv_schema(layout)
     return TableSink(
         _open(CsvFile, target, "CSV", staged, **kw),
+        layout,
         live=live,
         raise_errors=not live if raise_errors is None else raise_errors,
         cpus=cpus,
@@ -405,13 +414,27 @@ def csv_sink(
 
 
 def parquet_sink(
-    target: str | Path, metadata: dict[str, str] | None = None, **kw: Any
+    target: str | Path,
+    metadata: dict[str, str] | None = None,
+    *,
+    layout: Layout = RESULTS,
+    **kw: Any,
 ) -> TableSink:
-    """The results Parquet file of a replay, path checked first."""
+    """The results Parquet file of a replay, path checked first (``layout``: as for
+    :func:`csv_sink`)."""
     check_output_file(target, "Parquet file")
     staged = StagedFile(target) if stageable(target) else None
     return TableSink(
-        _open(ParquetFile, target, "Parquet file", staged, metadata=metadata, **kw),
+        _open(
+            ParquetFile,
+            target,
+            "Parquet file",
+            staged,
+            schema=layout.schema,
+            metadata=metadata,
+            **kw,
+        ),
+        layout,
         chunk_rows=PARQUET_ROW_GROUP,
         raise_errors=True,
         kind="Parquet file",

@@ -1,8 +1,10 @@
 """The measurements: h, H = dh/dx and R for the odometer and for the raw channel readings.
 
-The odometer reads (1 + E) times the speed it saw delta seconds ago (v - delta a to first
-order): a wheel 1 % too large reads 1 % low, and E is observable whenever the speed
-changes while the accelerometers measure the acceleration that changed it.
+The odometer reads (1 + E) times the speed it saw delta + L seconds ago (v - (delta + L) a
+to first order; delta the age its clock mapping gives, L the latency beyond it). E is the
+wheel-diameter error (a wheel configured 1 % small reads 1 % high); it is observable
+whenever the speed changes while the accelerometers measure the acceleration that
+changed it, and L whenever the acceleration is not zero.
 
 Channel i, mounted at theta_i in the track's vertical plane, reads
 y_i = cos(theta_i) u + sin(theta_i) w + b_i with u = a + S, the specific force along the
@@ -17,14 +19,14 @@ import math
 import numpy as np
 
 from bench.fusion.model._jit import jit
-from bench.fusion.model.state import B1, NX, P_G, P_RCH, P_RODO, P_RVU, P_RVW, A, E, K, S, V
+from bench.fusion.model.state import B1, NX, P_G, P_RCH, P_RODO, P_RVU, P_RVW, A, E, K, L, S, V
 
 
 @jit
 def odometer(x: np.ndarray, delta: float) -> np.ndarray:
     """h: the SPEED_REF reading expected of x, measured delta s before x's instant."""
     out = np.empty(1)
-    out[0] = (1.0 + x[E]) * (x[V] - delta * x[A])
+    out[0] = (1.0 + x[E]) * (x[V] - (delta + x[L]) * x[A])
     return out
 
 
@@ -33,9 +35,11 @@ def odometer_jacobian(x: np.ndarray, delta: float) -> np.ndarray:
     """H = dh/dx of :func:`odometer`."""
     out = np.zeros((1, NX))
     scale = 1.0 + x[E]
+    age = delta + x[L]
     out[0, V] = scale
-    out[0, A] = -delta * scale
-    out[0, E] = x[V] - delta * x[A]
+    out[0, A] = -age * scale
+    out[0, E] = x[V] - age * x[A]
+    out[0, L] = -scale * x[A]
     return out
 
 
@@ -82,12 +86,16 @@ def channels_jacobian(
 
 
 @jit
-def channels_noise(cos_th: np.ndarray, sin_th: np.ndarray, prm: np.ndarray) -> np.ndarray:
-    """R of the three readings: each channel's own white noise plus the body's vibration,
-    which every channel sees through its mounting (so it is correlated between channels)."""
+def channels_noise(
+    cos_th: np.ndarray, sin_th: np.ndarray, prm: np.ndarray, vib_u2: float, vib_w2: float
+) -> np.ndarray:
+    """R of the three readings: each channel's own white noise plus the body's vibration
+    (variances vib_u2 along the track and vib_w2 normal to it, m^2/s^4, at least the
+    parameters' floors), which every channel sees through its mounting (so it is correlated
+    between channels)."""
     r = prm[P_RCH] * prm[P_RCH]
-    qu = prm[P_RVU] * prm[P_RVU]
-    qw = prm[P_RVW] * prm[P_RVW]
+    qu = max(vib_u2, prm[P_RVU] * prm[P_RVU])
+    qw = max(vib_w2, prm[P_RVW] * prm[P_RVW])
     out = np.empty((3, 3))
     for i in range(3):
         for j in range(3):

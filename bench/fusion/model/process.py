@@ -3,7 +3,8 @@
 The train moves (v += a dt) and its acceleration changes by white jerk; the gradient
 changes only with distance: S += K dx with dx = v dt, S and K taking noise per metre
 travelled (an integrated random walk in x), so at standstill nothing about the track can
-grow uncertain. The wheel-scale error wears per metre, the biases walk in time.
+grow uncertain. The wheel-scale error wears per metre, the biases and the odometer's
+latency walk in time.
 """
 
 from __future__ import annotations
@@ -11,7 +12,24 @@ from __future__ import annotations
 import numpy as np
 
 from bench.fusion.model._jit import jit
-from bench.fusion.model.state import B1, B2, B3, NX, P_QB, P_QE, P_QJ, P_QK, P_QS, A, E, K, S, V
+from bench.fusion.model.state import (
+    B1,
+    B2,
+    B3,
+    NX,
+    P_QB,
+    P_QE,
+    P_QJ,
+    P_QK,
+    P_QL,
+    P_QS,
+    A,
+    E,
+    K,
+    L,
+    S,
+    V,
+)  # fmt: skip
 
 
 @jit
@@ -52,4 +70,5 @@ def noise(x: np.ndarray, dt: float, prm: np.ndarray) -> np.ndarray:
     out[E, E] = prm[P_QE] * d
     for b in (B1, B2, B3):
         out[b, b] = prm[P_QB] * dt
+    out[L, L] = prm[P_QL] * dt
     return out

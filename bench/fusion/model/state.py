@@ -10,6 +10,7 @@ S     g sin(alpha), gravity along the track, m/s^2 (gradient = 1000 S / sqrt(g^2
 K     dS/dx, the gradient's change per metre (vertical curves), m/s^2 per m
 E     the odometer's wheel-scale error: it reads (1 + E) v (wheel diameter error), 1
 B1-3  each channel's bias, m/s^2 (random walk: a drifting channel is a large bias)
+L     the odometer's latency beyond the clock mapping, s: it reads v(t - L)
 ====  ==========================================================================
 """
 
@@ -19,9 +20,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-V, A, S, K, E, B1, B2, B3 = range(8)
-NX = 8
-NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3")
+V, A, S, K, E, B1, B2, B3, L = range(9)
+NX = 9
+NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3", "latency")
 BIASES = (B1, B2, B3)
 
 
@@ -36,7 +37,7 @@ class ModelParams:
     wheel_scale_psd_per_m: float = 1e-12  # random walk of E per metre (wheel wear), 1/m
     bias_psd: float = 1e-12  # random walk of each channel's bias, (m/s^2)^2 / s
     channel_noise_mps2: float = 0.01  # each channel's white noise per sample, m/s^2
-    vibration_u_mps2: float = 0.0  # the body's common vibration along the track, m/s^2
+    vibration_u_mps2: float = 0.0  # least vibration of the body along the track, m/s^2
     vibration_w_mps2: float = 0.0  # ... and normal to it, m/s^2
     odometer_noise_mps: float = 0.05  # SPEED_REF noise, m/s
     speed0_mps: float = 1.0  # prior sigma of V
@@ -45,6 +46,10 @@ class ModelParams:
     grade_rate0_per_m: float = 1e-4  # prior sigma of K
     wheel_scale0: float = 0.03  # prior sigma of E (a 3 % wheel-diameter error)
     bias0_mps2: float = 1e-3  # prior sigma of each bias (what calibration leaves)
+    latency_psd: float = 1e-8  # random walk of the odometer's latency, s^2 / s
+    latency0_s: float = 0.0  # prior mean of the latency, s
+    latency_sigma0_s: float = 0.03  # its prior sigma, s
+    vibration_tau_s: float = 10.0  # the body's vibration is learnt over this long, s
 
     def array(self) -> np.ndarray:
         """The fields as a float64 array, in the order of the P_* indices below."""
@@ -68,8 +73,12 @@ class ModelParams:
     P_K0,
     P_E0,
     P_B0,
-) = range(16)
-NP = 16
+    P_QL,
+    P_L0,
+    P_LSIG0,
+    P_VTAU,
+) = range(20)
+NP = 20
 
 
 def initial(
@@ -79,9 +88,11 @@ def initial(
     x = np.zeros(NX)
     x[V] = speed
     x[S] = grade_s
+    x[L] = prm.latency0_s
     sig = np.zeros(NX)
     sig[V], sig[A], sig[S] = prm.speed0_mps, prm.accel0_mps2, prm.grade0_mps2
     sig[K], sig[E] = prm.grade_rate0_per_m, prm.wheel_scale0
     for b in BIASES:
         sig[b] = prm.bias0_mps2
+    sig[L] = prm.latency_sigma0_s
     return x, np.diag(sig * sig)

@@ -1,0 +1,157 @@
+"""The model over a whole recorded run: its forward pass, then the RTS smoother (issue 26).
+
+:class:`ModelLog` is handed what the estimator's filter is given, push by push (board time,
+calibrated channel readings, the channels the isolation lets through, the SPEED_REF
+frames applied), and keeps it. :meth:`ModelLog.smooth` runs the model's forward pass and
+its smoother over all of it and gives, per sample in the order pushed, the smoothed
+gradient and its sigma: what `bench replay --smooth` writes. It runs after the run, so it
+cannot change the live estimator's results, and it is the same whatever the batch cut
+(the recorded arrays are the concatenation of the pushes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from bench.config import Config
+from bench.fusion.model import run, smoother, state
+
+BLOCK_S = 0.02
+"""The model's step: the channel readings are averaged over blocks of at most this long."""
+ODOMETER_GATE = 25.0
+"""A SPEED_REF reading with NIS beyond this (5 sigma) is not applied (slip, slide)."""
+CHANNEL_GATE = 50.0
+"""A block's readings beyond this NIS are tried without each channel in turn."""
+ODOMETER_FLOOR_MPS = 0.01
+"""Odometer noise added to the settings' (1-sigma, m/s): what a wheel speed reads of a
+car's pitch and bounce and of its own resolution, beyond the sensor's white noise."""
+
+
+@dataclass(frozen=True, slots=True)
+class Smoothed:
+    """Per sample (in the order pushed): the model's gradient and its 1-sigma, permil."""
+
+    filtered: np.ndarray  # forward pass, NaN where fewer than two channels or withheld
+    filtered_sigma: np.ndarray
+    smoothed: np.ndarray  # RTS, NaN where fewer than two channels or withheld
+    smoothed_sigma: np.ndarray
+    wheel_scale: float  # the odometer's wheel-scale error E (SPEED_REF = (1 + E) v)
+    wheel_scale_sigma: float
+
+    def describe(self) -> str:
+        """One line: what the smoother learnt of the odometer."""
+        if not math.isfinite(self.wheel_scale):
+            return "smoother: no samples"
+        return (
+            f"smoother: the odometer reads {100.0 * self.wheel_scale:+.2f} % "
+            f"(1-sigma {100.0 * self.wheel_scale_sigma:.2f} %) of the speed (wheel diameter error)"
+        )
+
+
+def params(config: Config, **override: float) -> state.ModelParams:
+    """The model's parameters from a bench config's estimator settings (``override``: some
+    fields of :class:`~bench.fusion.model.state.ModelParams` set directly)."""
+    est = config.estimator
+    kw: dict[str, float] = {
+        "g": config.g,
+        "jerk_psd": est.accel_psd,
+        "grade_psd_per_m": est.grade_psd_per_m,
+        "grade_rate_psd_per_m": est.grade_rate_psd_per_m,
+        "bias0_mps2": est.bias_sigma_mps2,
+        "odometer_noise_mps": math.sqrt(
+            est.speed_noise_mps**2 + est.speed_quantum_mps**2 / 12.0 + ODOMETER_FLOOR_MPS**2
+        ),
+        "channel_noise_mps2": 0.01,
+        "vibration_u_mps2": 0.02,
+        "vibration_w_mps2": 0.01,
+    }
+    kw.update(override)
+    return state.ModelParams(**kw)
+
+
+class ModelLog:
+    """Keeps the estimator's inputs of a run (see :meth:`add`)."""
+
+    def __init__(self) -> None:
+        self._b: list[np.ndarray] = []
+        self._acc: list[np.ndarray] = []
+        self._used: list[np.ndarray] = []
+        self._frames: list[tuple[np.ndarray, ...]] = []
+        self.samples = 0
+
+    def add(
+        self,
+        b: np.ndarray,
+        acc: np.ndarray,
+        mask: np.ndarray,
+        frames: tuple[np.ndarray, ...] | None,
+    ) -> None:
+        """b (N,) board time s; acc (N, 3) calibrated m/s^2; mask (N,) the channels used,
+        bit c for channel c + 1; frames as the filter gets them (anchor index into this
+        push, board time measured, speed m/s, restart, standstill) or None."""
+        n = len(b)
+        code = np.asarray(mask, dtype=np.int64)
+        self._b.append(np.array(b, dtype=np.float64))
+        self._acc.append(np.array(acc, dtype=np.float64).reshape(n, 3))
+        self._used.append(np.column_stack([(code >> c) & 1 for c in range(3)]).astype(np.bool_))
+        if frames is not None and len(frames[0]):
+            fa, *rest = frames
+            self._frames.append((np.asarray(fa, dtype=np.int64) + self.samples, *rest))
+        self.samples += n
+
+    def smooth(self, config: Config, **override: float) -> Smoothed:
+        """The forward pass and the RTS smoother over everything added."""
+        prm_obj = params(config, **override)
+        b = np.concatenate(self._b) if self._b else np.zeros(0)
+        n = len(b)
+        if n == 0:
+            e = np.zeros(0)
+            return Smoothed(e, e, e, e, math.nan, math.nan)
+        y = np.concatenate(self._acc)
+        used = np.concatenate(self._used) & np.isfinite(y)
+        y = np.where(used, y, 0.0)
+        cols = list(zip(*self._frames, strict=True)) if self._frames else [()] * 5
+        fa = np.concatenate(cols[0]).astype(np.int64) if self._frames else np.zeros(0, np.int64)
+        fw, fs = (
+            np.concatenate(c).astype(np.float64) if self._frames else np.zeros(0) for c in cols[1:3]
+        )
+        fr, fst = (
+            np.concatenate(c).astype(np.bool_) if self._frames else np.zeros(0, np.bool_)
+            for c in cols[3:5]
+        )
+        th = np.asarray(config.angles_rad, dtype=np.float64)
+        block = max(1, int(BLOCK_S * config.sample_rate_hz))
+        x0, p0 = state.initial(prm_obj)
+        _, xp, pp, xf, pf, jac, _ = run.forward(
+            b, y, used, fa, fw, fs, fr, fst, np.cos(th), np.sin(th), prm_obj.array(),
+            x0, p0, block, ODOMETER_GATE, CHANNEL_GATE,
+        )  # fmt: skip
+        xs, ps = smoother.rts(xp, pp, xf, pf, jac)
+        idx = np.arange(n) // block
+        few = used.sum(axis=1) < 2
+        limit = config.gradient_sigma_limit_permil
+        g = config.g
+        out: list[np.ndarray] = []
+        for xx, px in ((xf, pf), (xs, ps)):
+            grad, sig = _gradient(xx[:, state.S], px[:, state.S, state.S], g)
+            value, sigma = grad[idx], sig[idx]
+            out += [np.where(few | ~(sigma <= limit), np.nan, value), sigma]
+        return Smoothed(
+            out[0],
+            out[1],
+            out[2],
+            out[3],
+            wheel_scale=float(xs[0, state.E]),
+            wheel_scale_sigma=float(math.sqrt(ps[0, state.E, state.E])),
+        )
+
+
+def _gradient(s: np.ndarray, var_s: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient 1000 tan(alpha) (permil) of S = g sin(alpha) and its 1-sigma from var(S)."""
+    c2 = g * g - s * s
+    grad = 1000.0 * s / np.sqrt(c2)
+    sig = 1000.0 * g * g / c2**1.5 * np.sqrt(np.maximum(var_s, 0.0))
+    return grad, sig

@@ -1,0 +1,87 @@
+"""`bench replay --smooth`: the explicit model's RTS smoother beside the filtered columns.
+
+A fixed-interval smoother needs the whole log before its first value, and a replay must
+not hold all its results at once, so the log is read twice: the first pass keeps only
+what the estimator's filter is given (bench.fusion.model.log.ModelLog) and smooths it;
+the second is the ordinary replay, each step's results joined to the smoothed gradient of
+the same samples on their way to the CSV/Parquet files. The filtered columns are those of
+a replay without --smooth, to the bit (the pipeline is the same and the smoother only
+reads).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from bench.config import Config
+from bench.errors import BenchError
+from bench.fusion.estimator import Estimator
+from bench.fusion.model.log import ModelLog, Smoothed
+from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import SMOOTHED_DTYPE
+from bench.replay.prefetch import prefetch
+from bench.replay.run import run_steps
+from bench.sinks.tables import TableSink
+from devices.base import FileSource
+
+
+def smoothing_pass(source: FileSource, config: Config, batch_frames: int = 65536) -> Smoothed:
+    """Read ``source`` once through a fresh pipeline and smooth what its filter was given."""
+    pipeline = Pipeline(config)
+    assert isinstance(pipeline.estimator, Estimator)
+    log = ModelLog()
+    pipeline.estimator.log = log
+    for _ in run_steps(pipeline, prefetch(source.batches(batch_frames))):
+        pass
+    return log.smooth(config)
+
+
+def with_smoothed(results: np.ndarray, smoothed: Smoothed, start: int) -> np.ndarray:
+    """``results`` (RESULT_DTYPE) as SMOOTHED_DTYPE rows, the smoothed gradient of samples
+    ``start`` .. ``start + len(results)`` of the log joined."""
+    out = np.empty(len(results), dtype=SMOOTHED_DTYPE)
+    for name in results.dtype.names or ():
+        out[name] = results[name]
+    stop = start + len(results)
+    if stop > len(smoothed.smoothed):
+        raise BenchError(
+            "the log gave more samples on its second reading than on its first: "
+            "it changed while replayed"
+        )
+    out["gradient_smoothed"] = smoothed.smoothed[start:stop]
+    out["gradient_smoothed_sigma"] = smoothed.smoothed_sigma[start:stop]
+    return out
+
+
+class SmoothedSinks:
+    """A sink that writes each step's results, with the smoothed columns, to table sinks
+    made with the :data:`~bench.records.columns.SMOOTHED` layout."""
+
+    def __init__(self, sinks: Iterable[TableSink], smoothed: Smoothed) -> None:
+        self.sinks = list(sinks)
+        self.smoothed = smoothed
+        self.rows = 0  # results joined so far
+
+    def write(self, step: StepOutput) -> None:
+        if not len(step.results):
+            return
+        rows = with_smoothed(step.results, self.smoothed, self.rows)
+        self.rows += len(rows)
+        for sink in self.sinks:
+            sink.put(rows)
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def check_complete(self) -> None:
+        """Both readings of the log gave the same number of samples."""
+        if self.rows != len(self.smoothed.smoothed):
+            raise BenchError(
+                f"the log gave {self.rows} samples on its second reading and "
+                f"{len(self.smoothed.smoothed)} on its first: it changed while replayed"
+            )
