@@ -184,6 +184,8 @@ kind = "no_frame_loss"
 TABLE = """
 duration_s = 3.5
 speed_ref = false
+[standstill]
+enabled = false  # a tilt table is no car: no HVAC, no doors
 [[track]]
 length_m = 10.0
 gradient_permil = 10.0

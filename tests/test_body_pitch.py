@@ -32,6 +32,8 @@ compliance_deg_per_mps2 = {C}
 frequency_hz = {F}
 damping_ratio = {Z}
 load_step_deg = 0.0
+[standstill]
+enabled = false
 [[train]]
 duration_s = 5.0
 accel_mps2 = 0.0
@@ -117,6 +119,8 @@ compliance_deg_per_mps2 = 0.1
 frequency_hz = 1.2
 damping_ratio = 0.3
 load_step_deg = 0.05
+[standstill]
+enabled = false  # no passengers' own steps: the station's load step alone
 [[train]]
 duration_s = 10.0
 accel_mps2 = -1.0

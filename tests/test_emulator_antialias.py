@@ -37,6 +37,8 @@ duration_s = 20.0
 sample_rate_hz = 50
 [body_pitch]
 enabled = false  # a load step at the station would shift the fitted tone
+[standstill]
+enabled = false  # so would the HVAC hum and the doors
 [[channels]]
 angle_deg = 30.0
 [[channels]]

@@ -28,6 +28,8 @@ speed_ref = true
 vertical_curve_m = 40.0
 [body_pitch]
 enabled = false  # the hand formula below is the ICD's, of a body that does not pitch
+[standstill]
+enabled = false  # nor hum
 
 [[track]]
 length_m = 100.0
@@ -225,6 +227,8 @@ def test_over_range_clips_with_ovr():
             """
             duration_s = 1.0
             speed_ref = false
+            [standstill]
+            enabled = false
             [[channels]]
             bias_mps2 = 15.0
             [[channels]]
@@ -248,6 +252,7 @@ def test_over_range_clips_with_ovr():
 def test_white_noise_has_the_configured_deviation():
     sc = parse_scenario(
         "duration_s = 50.0\nspeed_ref = false\n[body_pitch]\nenabled = false\n"
+        "[standstill]\nenabled = false\n"
         "[[channels]]\nnoise_mps2 = 0.01\n"
         "[[channels]]\n[[channels]]\nnoise_mps2 = 0.002\n",
         "noise.toml",

@@ -259,6 +259,8 @@ sample_rate_hz = 200
 initial_speed_mps = {v}
 [board]
 antialias_filter = false  # the tones below are unfiltered (issue 25)
+[standstill]
+enabled = false  # the body's tone alone
 [vibration]
 vertical_mps2 = 0.25
 longitudinal_mps2 = 0.08
@@ -332,6 +334,8 @@ duration_s = 20.0
 sample_rate_hz = 100
 initial_speed_mps = 20.0
 vertical_curve_accel = true
+[standstill]
+enabled = false  # v^2/R alone
 [[track]]
 length_m = 200.0
 gradient_permil = 0.0
@@ -371,6 +375,8 @@ TEMP = """
 duration_s = 300.0
 sample_rate_hz = 50
 [body_pitch]
+enabled = false
+[standstill]
 enabled = false
 [[channels]]
 bias_mps2 = 0.002

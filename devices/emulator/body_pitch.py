@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from devices.emulator import faults as fx
-from devices.emulator.motion import jerk_limited_pieces
+from devices.emulator.motion import Pieces, jerk_limited_pieces
 from devices.emulator.scenario import BodyPitchModel, Scenario
 
 STATION_RAMP = (0.2, 0.8)
@@ -58,14 +58,19 @@ def ramp_transient(tau: np.ndarray, zeta: float, wn: float) -> np.ndarray:
 class BodyPitch:
     """The body's pitch (deg, nose up positive) at any run times of one scenario."""
 
-    def __init__(self, sc: Scenario) -> None:
+    def __init__(
+        self,
+        sc: Scenario,
+        stations: list[tuple[float, float]] | None = None,
+        steps: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
+        """``stations`` as :func:`scenario_stations` (computed if not given); ``steps``
+        (times, deg): further steps of the load's pitch (passengers boarding)."""
         m: BodyPitchModel = sc.body_pitch
         self.model = m
         self.wn = 2.0 * math.pi * m.frequency_hz
         self.zeta = m.damping_ratio
-        p = jerk_limited_pieces(
-            sc.train, sc.jerk_mps3, sc.initial_speed_mps, sc.initial_position_m, sc.duration_s
-        )
+        p = _pieces(sc)
         c = m.compliance_deg_per_mps2
         # the acceleration's knots: value and slope changes at each piece's start
         a_end = np.concatenate(([0.0], p.a0[:-1] + p.j[:-1] * np.diff(p.t0)))
@@ -73,7 +78,13 @@ class BodyPitch:
         times = [p.t0]
         du = [c * (p.a0 - a_end)]
         dj = [c * (p.j - j_before)]
-        self.stations = stations(p.t0, p.a0, p.j, p.v0, m.min_dwell_s, sc.duration_s)
+        if stations is None:
+            stations = scenario_stations(sc)
+        self.stations = stations
+        if steps is not None and len(steps[0]):
+            times.append(np.asarray(steps[0], dtype=np.float64))
+            du.append(np.asarray(steps[1], dtype=np.float64))
+            dj.append(np.zeros(len(steps[0])))
         rng = fx.rng_for(sc.seed, fx.LAYER_BODY_PITCH)
         self.load_steps = m.load_step_deg * rng.standard_normal(len(self.stations))
         for (t0, t1), step in zip(self.stations, self.load_steps, strict=True):
@@ -127,6 +138,18 @@ class BodyPitch:
         return out
 
 
+def _pieces(sc: Scenario) -> Pieces:
+    return jerk_limited_pieces(
+        sc.train, sc.jerk_mps3, sc.initial_speed_mps, sc.initial_position_m, sc.duration_s
+    )
+
+
+def scenario_stations(sc: Scenario) -> list[tuple[float, float]]:
+    """The run's stations: its stops of at least ``[body_pitch] min_dwell_s``."""
+    p = _pieces(sc)
+    return stations(p.t0, p.a0, p.j, p.v0, sc.body_pitch.min_dwell_s, sc.duration_s)
+
+
 def stations(
     t0: np.ndarray, a0: np.ndarray, j: np.ndarray, v0: np.ndarray, min_dwell_s: float, end_s: float
 ) -> list[tuple[float, float]]:
@@ -174,6 +197,7 @@ __all__ = [
     "BodyPitch",
     "pitched_specific_force",
     "ramp_transient",
+    "scenario_stations",
     "stations",
     "step_transient",
 ]

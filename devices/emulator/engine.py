@@ -20,9 +20,11 @@ import numpy as np
 from devices.emulator import faults as fx
 from devices.emulator.antialias import gain_of
 from devices.emulator.board import FrameSet, adc_frames
-from devices.emulator.body_pitch import BodyPitch, pitched_specific_force
+from devices.emulator.body_pitch import BodyPitch, pitched_specific_force, scenario_stations
 from devices.emulator.motion import scenario_motion
 from devices.emulator.scenario import Fault, Scenario
+from devices.emulator.standstill import plan as standstill_plan
+from devices.emulator.standstill import standstill_accel
 from devices.emulator.stream_carry import Spikes
 from devices.emulator.vibration import body_vibration
 from devices.emulator.world import (
@@ -90,7 +92,10 @@ class Engine:
             if f.kind == "spike"
         }
         self.spikes = self._spike_plans() if values else {}
-        self.pitch = BodyPitch(sc) if sc.body_pitch.enabled else None
+        stations = scenario_stations(sc)
+        self.still = standstill_plan(sc, stations) if sc.standstill.enabled else None
+        boarding = (self.still.board_t, self.still.board_deg) if self.still else None
+        self.pitch = BodyPitch(sc, stations, boarding) if sc.body_pitch.enabled else None
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.next = 0  # the first instant of the next block
 
@@ -135,7 +140,10 @@ class Engine:
         if sc.vertical_curve_accel:
             slope = gradient_slope(sc.track, sc.vertical_curve_m, motion.position_m)
             body_z += curve_normal_accel(motion.speed_mps, grad, slope)
-        extra = sc.vibration.active or sc.vertical_curve_accel
+        if self.still is not None:
+            still_x, still_z = standstill_accel(sc, self.still, t, self.rate)
+            body_x, body_z = body_x + still_x, body_z + still_z
+        extra = sc.vibration.active or sc.vertical_curve_accel or self.still is not None
         rise = board_temperature(sc.board, t) - sc.board.temperature_c
         pitch = self.pitch.deg(t) if self.pitch is not None else None
         values = np.empty((3, len(us)), dtype=np.float64)

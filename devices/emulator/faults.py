@@ -31,6 +31,7 @@ LAYER_UART = 4
 LAYER_VIBRATION = 5
 LAYER_WHEEL = 6
 LAYER_BODY_PITCH = 11  # issue 25's physics: 11.. (other helpers' streams take 7..10)
+LAYER_STANDSTILL = 12
 
 
 def rng_for(seed: int, layer: int, index: int = 0) -> np.random.Generator:

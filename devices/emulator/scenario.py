@@ -170,6 +170,21 @@ class BodyPitchModel:
 
 
 @dataclass(frozen=True, slots=True)
+class StandstillModel:
+    """What a standing car still feels (devices.emulator.standstill): the HVAC's hum, the
+    doors' jolts and the passengers' boarding sway at stations."""
+
+    enabled: bool = True
+    hvac_mps2: float = 0.01  # tone amplitude normal to the track (half of it along)
+    hvac_hz: float = 14.0
+    door_mps2: float = 0.1  # peak jolt along the track as a door opens or closes
+    door_hz: float = 8.0  # the body rings at this frequency...
+    door_decay_s: float = 0.3  # ...decaying with this time constant
+    boarding_rate_hz: float = 0.5  # passengers per second while the doors are open
+    boarding_step_deg: float = 0.002  # standard deviation of one passenger's pitch step
+
+
+@dataclass(frozen=True, slots=True)
 class Fault:
     index: int  # 1-based position in [[faults]]
     kind: str
@@ -215,6 +230,7 @@ class Scenario:
     odometer: OdometerModel = field(default_factory=OdometerModel)
     vibration: VibrationModel = field(default_factory=VibrationModel)
     body_pitch: BodyPitchModel = field(default_factory=BodyPitchModel)
+    standstill: StandstillModel = field(default_factory=StandstillModel)
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -387,6 +403,23 @@ def _parse_body_pitch(file: str, value: Any) -> BodyPitchModel:
     return m
 
 
+def _parse_standstill(file: str, value: Any, rate: int) -> StandstillModel:
+    t = Table(file, "standstill", value)
+    nyquist = rate / 2.0
+    m = StandstillModel(
+        enabled=t.flag("enabled", True),
+        hvac_mps2=t.num("hvac_mps2", 0.01, 0.0, 5.0),
+        hvac_hz=t.num("hvac_hz", 14.0, 0.0, nyquist, lo_open=True),
+        door_mps2=t.num("door_mps2", 0.1, 0.0, 10.0),
+        door_hz=t.num("door_hz", 8.0, 0.0, nyquist, lo_open=True),
+        door_decay_s=t.num("door_decay_s", 0.3, 0.0, 10.0, lo_open=True),
+        boarding_rate_hz=t.num("boarding_rate_hz", 0.5, 0.0, 50.0),
+        boarding_step_deg=t.num("boarding_step_deg", 0.002, 0.0, 1.0),
+    )
+    t.done()
+    return m
+
+
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
@@ -503,6 +536,7 @@ _TOP_KEYS = (
     "odometer",
     "vibration",
     "body_pitch",
+    "standstill",
     "faults",
 )
 
@@ -554,6 +588,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
         body_pitch=_parse_body_pitch(source, top.raw("body_pitch", {})),
+        standstill=_parse_standstill(source, top.raw("standstill", {}), rate),
         faults=tuple(
             _parse_fault(source, i, item, duration)
             for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
