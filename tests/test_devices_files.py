@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import struct
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -234,22 +235,47 @@ def test_blf_with_zero_size_object_does_not_hang(tmp_path: Path, alarm: None) ->
     assert [n.kind for b in result for n in b.notices] == ["truncated"]
 
 
-def test_corrupt_compressed_blf(tmp_path: Path, alarm: None) -> None:
-    write_with_can_logger(tmp_path / "c.blf", sample_frames(3000))
-    raw = bytearray((tmp_path / "c.blf").read_bytes())
+CONTAINER = 8192  # uncompressed bytes of a BLF log container (python-can's max_container_size)
+
+
+def blf_containers(raw: bytes) -> list[tuple[int, int]]:
+    """(start, end) of each LOG_CONTAINER object of a BLF file, walking its object headers
+    (LOBJ, header size, version, object size, type 10) from the file header's end."""
+    off, out = struct.unpack_from("<I", raw, 4)[0], []
+    while off + 16 <= len(raw):
+        sig, _, _, size, kind = struct.unpack_from("<4sHHII", raw, off)
+        assert sig == b"LOBJ" and kind == 10, (off, sig, kind)
+        out.append((off, off + size))
+        off += size + size % 4  # objects are padded to 4 bytes
+    return out
+
+
+def test_corrupt_compressed_blf_reads_the_containers_before_the_damage(
+    tmp_path: Path, alarm: None
+) -> None:
+    """40 random bytes in a zlib container: every frame wholly in the containers before it is
+    read, in order, and the stop is one 'truncated' notice with that count."""
+    frames = sample_frames(3000)
+    write_with_can_logger(tmp_path / "c.blf", frames, max_container_size=CONTAINER)
+    raw = (tmp_path / "c.blf").read_bytes()
+    containers = blf_containers(raw)
+    assert len(containers) == 18  # 2999 CAN_MESSAGE objects of 48 bytes, one error of 64
+    sizes = np.where(frames["flags"] & FLAG_ERROR, 64, 48)  # object header 32 + body
+    ends = np.cumsum(sizes)
     rng = np.random.default_rng(1)
-    for _ in range(5):
+    for at in rng.integers(200, len(raw) - 40, 6).tolist():
         bad = bytearray(raw)
-        at = rng.integers(200, len(raw), 20)
-        bad[at[0] : at[0] + 40] = rng.integers(0, 256, 40, dtype=np.uint8).tobytes()
+        bad[at : at + 40] = rng.integers(0, 256, 40, dtype=np.uint8).tobytes()
         (tmp_path / "bad.blf").write_bytes(bytes(bad))
-        result = drain(tmp_path / "bad.blf")  # raises nothing but BenchError
-        if isinstance(result, BenchError):
-            continue  # refused in one line
-        got = sum(len(b.frames) for b in result)
-        assert got <= 3000
-        if got < 3000:  # frames lost to the damage are never lost silently
-            assert [n for b in result for n in b.notices], f"{3000 - got} frames lost unreported"
+        whole = sum(end <= at for _, end in containers)  # containers before the damage
+        want = int(np.sum(ends <= whole * CONTAINER))
+        result = drain(tmp_path / "bad.blf")
+        assert not isinstance(result, BenchError), result
+        got = np.concatenate([b.frames for b in result])
+        assert got.tobytes() == frames[:want].tobytes(), (at, len(got), want)
+        notices = [n for b in result for n in b.notices]
+        assert [n.kind for n in notices] == ["truncated"], notices
+        assert f"after {want} frames" in notices[0].detail, notices[0].detail
 
 
 @pytest.mark.parametrize("suffix", [".asc", ".trc", ".csv", ".blf", ".log", ".bin", ".mcap"])

@@ -6,7 +6,7 @@
   ``n``, and accounts for every frame.
 * A recorded MCAP file truncated anywhere and with bytes flipped anywhere: the reader
   either refuses it with one ``BenchError`` line or yields what is intact; replaying it
-  never raises.
+  never raises, and loses no frame without saying so.
 
 (Round trips of the scalar codecs, CRCs, COBS framing and the candump parser are held by
 tests/test_protocol_*.py and tests/test_devices_candump.py.)
@@ -17,6 +17,7 @@ from __future__ import annotations
 import itertools
 import os
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,10 +28,10 @@ from hypothesis import strategies as st
 
 from bench.config import Config
 from bench.errors import BenchError
-from bench.pipeline.steps import Pipeline
+from bench.pipeline.steps import Pipeline, StepOutput
 from devices.base import SourceBatch
 from protocol.crc import frame_crc8_batch
-from protocol.frames import FRAME_DTYPE
+from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.layout import DEFAULT_BASE, SPEED_REF_ID
 
 SCALE = float(os.environ.get("BENCH_FUZZ_SCALE", "1"))
@@ -105,8 +106,14 @@ def test_pipeline_takes_any_board_like_stream(
 
 
 # --------------------------------------------------------------------------- MCAP
+@dataclass(frozen=True)
+class Recorded:
+    data: bytes  # the MCAP file
+    frames: np.ndarray  # the emulator's frames the live run wrote into it
+
+
 @pytest.fixture(scope="module")
-def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
+def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
     """A small MCAP file as a live run writes it (frames, samples, results, events)."""
     from bench.mcaplog.sink import McapSink
     from devices.emulator import scenario_from_dict, simulate
@@ -120,10 +127,29 @@ def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     sink.write(p.finish())
     sink.close()
     assert sink.error is None
-    return path.read_bytes()
+    return Recorded(path.read_bytes(), sim.frames.copy())
 
 
-def _read_all(path: Path) -> Any:
+class _Frames:
+    """A sink keeping the frames each replay step was given."""
+
+    def __init__(self) -> None:
+        self.parts: list[np.ndarray] = []
+
+    def write(self, step: StepOutput) -> None:
+        if step.batch is not None:
+            self.parts.append(step.batch.frames)
+
+    def mark(self, t: float, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _replayed(path: Path) -> tuple[np.ndarray, list[str]] | None:
+    """The frames a replay of ``path`` processed and its notices; None when the file is
+    refused, which must be one line."""
     from bench.mcaplog.reader import McapLog
     from bench.replay.run import replay
     from devices.formats import open_log
@@ -136,34 +162,55 @@ def _read_all(path: Path) -> Any:
             log.verify()
         source = open_log(path)
     except BenchError as exc:
-        assert "\n" not in str(exc).strip()
+        assert str(exc).strip() and "\n" not in str(exc).strip()
         return None
-    return replay(source, Config(), collect=True)
+    kept = _Frames()
+    out = replay(source, Config(), [kept], collect=True)
+    frames = np.concatenate(kept.parts) if kept.parts else empty_frames()
+    assert out.pipeline.stats.frames == len(frames)
+    return frames, out.notices
+
+
+def _lost_only_with_notice(got: tuple[np.ndarray, list[str]], recorded: Recorded) -> None:
+    """The frames read are recorded ones in their order (whole chunks may be missing), and
+    when any is missing the replay says so."""
+    frames, notices = got
+    want = [r.tobytes() for r in recorded.frames]
+    it = iter(want)
+    assert all(f.tobytes() in it for f in frames), "a frame the run did not record"
+    if len(frames) < len(want):
+        assert notices, f"{len(want) - len(frames)} of {len(want)} frames lost silently"
 
 
 @_settings(80)
 @given(data=st.data())
 def test_mcap_truncated_anywhere_reads_what_is_intact(
-    recorded_mcap: bytes, tmp_path_factory: pytest.TempPathFactory, data: Any
+    recorded_mcap: Recorded, tmp_path_factory: pytest.TempPathFactory, data: Any
 ) -> None:
-    cut = data.draw(st.integers(0, len(recorded_mcap) - 1))
+    cut = data.draw(st.integers(0, len(recorded_mcap.data) - 1))
     path = tmp_path_factory.mktemp("cut") / "cut.mcap"
-    path.write_bytes(recorded_mcap[:cut])
-    _read_all(path)
+    path.write_bytes(recorded_mcap.data[:cut])
+    got = _replayed(path)
+    if got is not None:  # a prefix of what was recorded, and the cut is reported
+        frames = got[0]
+        assert frames.tobytes() == recorded_mcap.frames[: len(frames)].tobytes()
+        _lost_only_with_notice(got, recorded_mcap)
 
 
 @_settings(80)
 @given(data=st.data())
-def test_mcap_with_flipped_bytes_never_raises(
-    recorded_mcap: bytes, tmp_path_factory: pytest.TempPathFactory, data: Any
+def test_mcap_with_flipped_bytes_loses_nothing_silently(
+    recorded_mcap: Recorded, tmp_path_factory: pytest.TempPathFactory, data: Any
 ) -> None:
-    buf = bytearray(recorded_mcap)
+    buf = bytearray(recorded_mcap.data)
     for _ in range(data.draw(st.integers(1, 4))):
         i = data.draw(st.integers(0, len(buf) - 1))
         buf[i] = data.draw(st.sampled_from([0x00, 0xFF, buf[i] ^ 0x01, buf[i] ^ 0x80]))
     path = tmp_path_factory.mktemp("flip") / "flip.mcap"
     path.write_bytes(bytes(buf))
-    _read_all(path)
+    got = _replayed(path)
+    if got is not None:
+        _lost_only_with_notice(got, recorded_mcap)
 
 
 @_settings(40)
@@ -171,7 +218,10 @@ def test_mcap_with_flipped_bytes_never_raises(
 def test_mcap_magic_then_garbage(tmp_path_factory: pytest.TempPathFactory, blob: bytes) -> None:
     path = tmp_path_factory.mktemp("garbage") / "g.mcap"
     path.write_bytes(b"\x89MCAP0\r\n" + blob)
-    _read_all(path)
+    got = _replayed(path)
+    if got is not None:  # garbage holds no frame, and a replay of it says what it skipped
+        frames, notices = got
+        assert len(frames) == 0 and notices, (len(frames), notices)
 
 
 @pytest.mark.parametrize("bad_t", [float("inf"), float("nan"), 1e300, -1.0])

@@ -16,6 +16,7 @@ import datetime as dt
 import math
 import os
 import re
+import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -24,10 +25,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bench.acceptance.plan import Plan, parse_plan
 from bench.config import Config, config_from_dict, load_config
 from bench.errors import ConfigError
 from devices.emulator import parse_scenario, scenario_from_dict
-from devices.emulator.scenario import SCENARIO_DIR
+from devices.emulator.scenario import SCENARIO_DIR, Scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = sorted(SCENARIO_DIR.glob("*.toml"))
@@ -129,13 +131,63 @@ def edited(draw: st.DrawFn, text: str) -> str:
 
 
 def _only_config_errors(fn: Any, *args: Any) -> Any:
+    """``fn(*args)``, or None for a ConfigError: one line, naming the file (``args[1]`` or
+    the path ``args[0]``)."""
     try:
         return fn(*args)
     except ConfigError as exc:
         text = str(exc)
         assert text and "\n" not in text.strip(), f"not one line: {text!r}"
         assert "Traceback" not in text
+        name = args[1] if len(args) > 1 else Path(args[0]).name
+        assert str(name) in text, f"the file is not named: {text!r}"
         return None
+
+
+def _loaded(kind: type, fn: Any, *args: Any, refused: bool) -> Any:
+    """What ``fn`` made of the input: a ``kind``, or None for one ConfigError line; None
+    when the input is ``refused`` (invalid TOML, an unknown key) by what the test knows."""
+    got = _only_config_errors(fn, *args)
+    assert got is None or isinstance(got, kind), f"{type(got).__name__}, not {kind.__name__}"
+    assert not (refused and got is not None), f"accepted what must be refused: {args[0]!r}"
+    return got
+
+
+STRANGERS = {"bogus", "", "x", "x y"}  # keys no loader knows (edited() and _tree() add them)
+
+
+def _toml(text: str) -> dict[str, Any] | None:
+    """The text's TOML as the standard library reads it (after an editor's byte-order mark,
+    which the loaders skip), None when it is not TOML."""
+    try:
+        return tomllib.loads(text.removeprefix("\ufeff"))
+    except tomllib.TOMLDecodeError:
+        return None
+
+
+def _has_stranger(tree: Any) -> bool:
+    """A key no loader knows, anywhere in a loader's tables (not inside values)."""
+    if isinstance(tree, list):
+        return any(_has_stranger(t) for t in tree)
+    if not isinstance(tree, dict):
+        return False
+    return bool(STRANGERS & tree.keys()) or any(_has_stranger(v) for v in tree.values())
+
+
+def _refused_text(text: str) -> bool:
+    """Text every loader must refuse: not TOML, or a table with a key none knows."""
+    tree = _toml(text)
+    return tree is None or _has_stranger(tree)
+
+
+def _usable_config(cfg: Config) -> None:
+    assert all(math.isfinite(c.angle_deg) and c.scale > 0 for c in cfg.channels)
+    assert len({c.angle_deg for c in cfg.channels}) == 3
+
+
+def _usable_scenario(sc: Scenario) -> None:
+    assert math.isfinite(sc.duration_s) and sc.duration_s > 0, sc.duration_s
+    assert sc.sample_rate_hz > 0, sc.sample_rate_hz
 
 
 # --------------------------------------------------------------------------- config
@@ -146,10 +198,9 @@ def test_edited_config_is_a_config_or_one_config_error(tmp_path_factory: Any, da
     text = data.draw(edited(base))
     path = tmp_path_factory.mktemp("cfg") / "cal.toml"
     path.write_text(text, encoding="utf-8")
-    cfg = _only_config_errors(load_config, path)
+    cfg = _loaded(Config, load_config, path, refused=_refused_text(text))
     if cfg is not None:  # what loads must be usable, and written back it reads the same
-        assert all(math.isfinite(c.angle_deg) and c.scale > 0 for c in cfg.channels)
-        assert len({c.angle_deg for c in cfg.channels}) == 3
+        _usable_config(cfg)
         again = tmp_path_factory.mktemp("again") / "again.toml"
         again.write_text(cfg.to_toml(), encoding="utf-8")
         assert replace(load_config(again), source=cfg.source, path=cfg.path) == cfg
@@ -195,7 +246,9 @@ CONFIG_TREE = st.fixed_dictionaries(
 @FUZZ
 @given(CONFIG_TREE)
 def test_config_dict_is_a_config_or_one_config_error(data: dict[str, Any]) -> None:
-    _only_config_errors(config_from_dict, data, "fuzz.toml")
+    cfg = _loaded(Config, config_from_dict, data, "fuzz.toml", refused=_has_stranger(data))
+    if cfg is not None:
+        _usable_config(cfg)
 
 
 # --------------------------------------------------------------------------- scenario
@@ -222,7 +275,9 @@ SCENARIO_TREE = st.fixed_dictionaries(
 @FUZZ
 @given(SCENARIO_TREE)
 def test_scenario_dict_is_a_scenario_or_one_config_error(data: dict[str, Any]) -> None:
-    _only_config_errors(scenario_from_dict, data, "fuzz.toml")
+    sc = _loaded(Scenario, scenario_from_dict, data, "fuzz.toml", refused=_has_stranger(data))
+    if sc is not None:
+        _usable_scenario(sc)
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.name)
@@ -230,7 +285,9 @@ def test_scenario_dict_is_a_scenario_or_one_config_error(data: dict[str, Any]) -
 @given(data=st.data())
 def test_edited_scenario_is_a_scenario_or_one_config_error(path: Path, data: Any) -> None:
     text = data.draw(edited(path.read_text(encoding="utf-8")))
-    _only_config_errors(parse_scenario, text, path.name)
+    sc = _loaded(Scenario, parse_scenario, text, path.name, refused=_refused_text(text))
+    if sc is not None:
+        _usable_scenario(sc)
 
 
 # --------------------------------------------------------------------------- plans
@@ -238,20 +295,19 @@ def test_edited_scenario_is_a_scenario_or_one_config_error(path: Path, data: Any
 @_settings(20)
 @given(data=st.data())
 def test_edited_plan_is_a_plan_or_one_config_error(path: Path, data: Any) -> None:
-    from bench.acceptance.plan import parse_plan
-
     text = data.draw(edited(path.read_text(encoding="utf-8")))
-    _only_config_errors(parse_plan, text, path.name, path)
+    _loaded(Plan, parse_plan, text, path.name, path, refused=_refused_text(text))
 
 
 @FUZZ
 @given(st.binary(max_size=200))
 def test_plan_config_scenario_from_binary_garbage(blob: bytes) -> None:
-    from bench.acceptance.plan import parse_plan
-
     text = blob.decode("utf-8", "replace")
-    for fn in (parse_plan, parse_scenario):
-        _only_config_errors(fn, text, "garbage.toml")
+    tree = _toml(text)
+    _loaded(Plan, parse_plan, text, "garbage.toml", refused=tree is None or "plan" not in tree)
+    sc = _loaded(Scenario, parse_scenario, text, "garbage.toml", refused=_refused_text(text))
+    if sc is not None:
+        _usable_scenario(sc)
 
 
 def _loader(name: str) -> Any:
