@@ -149,7 +149,8 @@ class _Frames:
 
 def _replayed(path: Path) -> tuple[np.ndarray, list[str]] | None:
     """The frames a replay of ``path`` processed and its notices; None when the file is
-    refused, which must be one line."""
+    refused, which must be one line, or yields no frame (``bench replay`` refuses that in
+    one line too: bench.replay.run.no_frames)."""
     from bench.mcaplog.reader import McapLog
     from bench.replay.run import replay
     from devices.formats import open_log
@@ -168,7 +169,7 @@ def _replayed(path: Path) -> tuple[np.ndarray, list[str]] | None:
     out = replay(source, Config(), [kept], collect=True)
     frames = np.concatenate(kept.parts) if kept.parts else empty_frames()
     assert out.pipeline.stats.frames == len(frames)
-    return frames, out.notices
+    return (frames, out.notices) if len(frames) else None
 
 
 def _lost_only_with_notice(got: tuple[np.ndarray, list[str]], recorded: Recorded) -> None:
@@ -213,15 +214,50 @@ def test_mcap_with_flipped_bytes_loses_nothing_silently(
         _lost_only_with_notice(got, recorded_mcap)
 
 
+def _records(data: bytes, opcode: int) -> list[int]:
+    """Offsets of the data section's records of ``opcode`` (MCAP: opcode u8, length u64),
+    walked from the magic to DataEnd (0x0F)."""
+    pos, out = 8, []
+    while pos + 9 <= len(data):
+        op, length = struct.unpack_from("<BQ", data, pos)
+        if op == 0x0F:
+            break
+        if op == opcode:
+            out.append(pos)
+        pos += 9 + length
+    return out
+
+
+@pytest.mark.parametrize(("opcode", "what"), [(0x07, "MessageIndex"), (0x04, "Channel")])
+def test_mcap_with_a_channel_id_flipped_loses_nothing_silently(
+    recorded_mcap: Recorded, tmp_path: Path, opcode: int, what: str
+) -> None:
+    """A one-bit flip in the channel id (the body's first u16) of a chunk's MessageIndex
+    hid that chunk's frames, and of a Channel record raised JSONDecodeError: now the index
+    is checked against the chunk and a message that is not its topic's JSON is a notice."""
+    offsets = _records(recorded_mcap.data, opcode)
+    assert len(offsets) >= 3, what
+    for at in offsets[:12]:
+        for bit in (0x01, 0x02, 0x100):
+            buf = bytearray(recorded_mcap.data)
+            struct.pack_into("<H", buf, at + 9, struct.unpack_from("<H", buf, at + 9)[0] ^ bit)
+            path = tmp_path / f"{what}-{at}-{bit}.mcap"
+            path.write_bytes(bytes(buf))
+            got = _replayed(path)
+            if opcode == 0x07:  # the chunks are whole: every frame is read
+                assert got is not None and len(got[0]) == len(recorded_mcap.frames), (at, bit)
+            if got is not None:  # a Channel's damage may also be refused, in one line
+                _lost_only_with_notice(got, recorded_mcap)
+
+
 @_settings(40)
 @given(st.binary(max_size=400))
-def test_mcap_magic_then_garbage(tmp_path_factory: pytest.TempPathFactory, blob: bytes) -> None:
+def test_mcap_magic_then_garbage_is_refused(
+    tmp_path_factory: pytest.TempPathFactory, blob: bytes
+) -> None:
     path = tmp_path_factory.mktemp("garbage") / "g.mcap"
     path.write_bytes(b"\x89MCAP0\r\n" + blob)
-    got = _replayed(path)
-    if got is not None:  # garbage holds no frame, and a replay of it says what it skipped
-        frames, notices = got
-        assert len(frames) == 0 and notices, (len(frames), notices)
+    assert _replayed(path) is None  # refused: garbage holds no frame
 
 
 @pytest.mark.parametrize("bad_t", [float("inf"), float("nan"), 1e300, -1.0])

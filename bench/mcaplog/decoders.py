@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import base64
 import json
+import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -57,3 +59,19 @@ def notice_from_json(m: bytes | memoryview) -> SourceNotice:
         str(d.get("detail", "")),
         int(d.get("count") or 0),  # absent in logs written before it existed
     )
+
+
+def or_notice(
+    conv: Callable[[bytes | memoryview], LinkError | SourceNotice], where: str
+) -> Callable[[bytes | memoryview], LinkError | SourceNotice]:
+    """``conv``, or a parse_error notice for a message that is not the JSON ``conv`` reads
+    (a damaged file whose channel ids or payloads changed): counted, never a traceback."""
+
+    def one(m: bytes | memoryview) -> LinkError | SourceNotice:
+        try:
+            return conv(m)
+        except (ValueError, TypeError, AttributeError) as exc:
+            why = f"{type(exc).__name__}: {exc}"[:120]
+            return SourceNotice(math.nan, "parse_error", f"{where}: message skipped ({why})")
+
+    return one

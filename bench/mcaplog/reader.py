@@ -21,7 +21,7 @@ import os
 import struct
 import zlib
 from collections import Counter
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +33,7 @@ from bench.mcaplog.decoders import (
     frames_from_records,
     link_error_from_json,
     notice_from_json,
+    or_notice,
 )
 from bench.mcaplog.filebytes import FileBytes
 from bench.mcaplog.recovery import (
@@ -409,15 +410,26 @@ class McapLog:
     def _offsets(
         self, info: ChunkInfo, buf: bytes, channels: set[int] | None
     ) -> dict[int, np.ndarray]:
+        """Each channel's message offsets from the chunk's MessageIndex when it agrees with
+        the chunk (known channels, every offset a Message record of its channel), else from
+        a walk of the chunk: a damaged index costs no message."""
         out: dict[int, np.ndarray] = {}
-        if info.indexed:
+        if info.indexed and info.index.keys() <= self.channels.keys():
             ok = True
+            head = np.frombuffer(buf, dtype=np.uint8)
             for cid, (off, nbytes) in info.index.items():
                 if channels is not None and cid not in channels:
                     continue
                 entries = np.frombuffer(self._mm[off : off + nbytes // 8 * 8], dtype="<u8")
                 offs = entries[1::2].astype(np.int64)
                 if len(offs) and (offs.max() + S.MESSAGE_HEADER_SIZE > len(buf) or offs.min() < 0):
+                    ok = False
+                    break
+                if len(offs) and (
+                    np.any(head[offs] != OP_MESSAGE)
+                    or np.any(head[offs + 9] != cid & 0xFF)
+                    or np.any(head[offs + 10] != cid >> 8)
+                ):
                     ok = False
                     break
                 if len(offs) > 1 and np.any(offs[1:] < offs[:-1]):
@@ -435,7 +447,12 @@ class McapLog:
         """
         every = self._with_aliases(channels)
         for info in self.chunks:
-            if every is not None and info.indexed and every.isdisjoint(info.index):
+            if (
+                every is not None
+                and info.indexed
+                and every.isdisjoint(info.index)
+                and info.index.keys() <= self.channels.keys()  # else the index is damaged
+            ):
                 continue
             buf = self.decompress(info)
             if buf is not None:
@@ -506,10 +523,12 @@ class McapLog:
             if len(recs):
                 parts.append(frames_from_records(recs))
                 pending += len(recs)
-            if lid is not None:
-                errors += [link_error_from_json(m) for m in content.payloads(lid)]
-            if nid is not None:
-                notices += [notice_from_json(m) for m in content.payloads(nid)]
+            for cid, conv in self._decoders(lid, nid):
+                for item in map(conv, content.payloads(cid)):
+                    if isinstance(item, LinkError):
+                        errors.append(item)
+                    else:
+                        notices.append(item)
             while pending >= max_frames:
                 frames = np.concatenate(parts) if len(parts) > 1 else parts[0]
                 yield SourceBatch(frames[:max_frames], errors, notices), reached
@@ -519,6 +538,14 @@ class McapLog:
         if parts or errors or notices:
             frames = np.concatenate(parts) if parts else empty_frames()
             yield SourceBatch(frames, errors, notices), reached
+
+    def _decoders(
+        self, lid: int | None, nid: int | None
+    ) -> list[tuple[int, Callable[[bytes | memoryview], LinkError | SourceNotice]]]:
+        """(channel, reader) for the recorded link errors and notices the file has."""
+        where = self.path.name
+        pairs = ((lid, link_error_from_json), (nid, notice_from_json))
+        return [(cid, or_notice(conv, where)) for cid, conv in pairs if cid is not None]
 
     def _iter_recorded(self, max_frames: int) -> Iterator[tuple[SourceBatch, int]]:
         """The live batches: a batch starts at each frame marked FLAG_BATCH_START; a link
@@ -537,10 +564,9 @@ class McapLog:
             bounds = foffs[starts]
             frames = frames_from_records(recs)
             extras: list[tuple[int, LinkError | SourceNotice]] = []
-            for cid, conv in ((lid, link_error_from_json), (nid, notice_from_json)):
-                if cid is not None:
-                    offs = content.offsets.get(cid, np.zeros(0, np.int64)).tolist()
-                    extras += zip(offs, map(conv, content.payloads(cid)), strict=True)
+            for cid, conv in self._decoders(lid, nid):
+                offs = content.offsets.get(cid, np.zeros(0, np.int64)).tolist()
+                extras += zip(offs, map(conv, content.payloads(cid)), strict=True)
             extras.sort(key=lambda x: x[0])
             by_seg: dict[int, list[LinkError | SourceNotice]] = {}
             segs = np.searchsorted(bounds, [o for o, _ in extras], side="right").tolist()
