@@ -222,5 +222,13 @@ class StalledClient:
         self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(text)))
         return self
 
+    def was_let_go(self) -> bool:
+        """Whether the server ended the connection (its reset or close arrived), seen from
+        the kernel's TCP state without reading a byte (Linux ``TCP_INFO``)."""
+        import socket
+
+        info = self.sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, 8)
+        return info[0] != 1  # tcpi_state: 1 is TCP_ESTABLISHED
+
     def close(self) -> None:
         self.sock.close()

@@ -10,6 +10,7 @@ limits below are hang guards, never speed bounds.
 
 from __future__ import annotations
 
+import contextlib
 import re
 import signal
 import subprocess
@@ -113,3 +114,153 @@ def test_sigterm_ends_a_run_whose_viewer_never_reads(tmp_path):
     assert proc.returncode == 0, err.text()
     info = log_info(log)
     assert info["complete"] and info["frames"] > 0, info
+
+
+def test_a_run_says_what_a_stalled_viewer_cost(tmp_path):
+    """The stalled viewer is let go (reset) while the run goes on, and the run's end says
+    so in one warning; the log is whole."""
+    proc, _out, err, log = _start(tmp_path, "600")
+    viewer = None
+    try:
+        port = int(err.wait(r"Foxglove live stream on ws://127\.0\.0\.1:(\d+)", proc)[1])
+        viewer = StalledClient(port).subscribe("/can/frames")
+        deadline = time.monotonic() + GUARD_S  # a hang guard: the cut comes after ~5 s
+        while not viewer.was_let_go():
+            assert proc.poll() is None and time.monotonic() < deadline, err.text()
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(GUARD_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        if viewer is not None:
+            viewer.close()
+    text = err.text()
+    assert proc.returncode == 0, text
+    warned = [ln for ln in text.splitlines() if "viewer disconnected" in ln]
+    assert len(warned) == 1, text
+    assert f"Foxglove live stream on ws://127.0.0.1:{port}: " in warned[0]
+    assert "1 viewer disconnected (did not take what was sent within 5 s)" in warned[0]
+    assert log_info(log)["complete"]
+
+
+def test_the_viewer_warning_line():
+    from bench.mcaplog.writer_process import viewer_warning
+
+    assert viewer_warning({}) == ""
+    assert viewer_warning({"messages_dropped": 0, "clients_cut": 0}) == ""
+    assert viewer_warning({"messages_dropped": 12, "clients_cut": 0}) == (
+        "12 messages dropped for viewers that fell behind (the run and its log are not affected)"
+    )
+    assert viewer_warning({"messages_dropped": 3, "clients_cut": 2}) == (
+        "3 messages dropped for viewers that fell behind; 2 viewers disconnected (did not "
+        "take what was sent within 5 s) (the run and its log are not affected)"
+    )
+
+
+def _ws_frame(opcode: int, payload: bytes, fin: bool = True) -> bytes:
+    """A server frame by RFC 6455 section 5.2 (unmasked), written here by hand."""
+    b0 = (0x80 if fin else 0) | opcode
+    n = len(payload)
+    if n < 126:
+        return bytes([b0, n]) + payload
+    if n < 65536:
+        return bytes([b0, 126]) + n.to_bytes(2, "big") + payload
+    return bytes([b0, 127]) + n.to_bytes(8, "big") + payload
+
+
+def test_split_frames_cuts_whole_frames_and_marks_only_message_data_droppable():
+    from bench.mcaplog.foxglove_front import split_frames
+
+    data = _ws_frame(0x2, b"\x01" + b"m" * 20)  # binary Message Data (opcode 0x01 byte)
+    advert = _ws_frame(0x1, b'{"op": "advertise"}')  # text: never dropped
+    time_ = _ws_frame(0x2, b"\x02" + b"t" * 8)  # binary Time: never dropped
+    long = _ws_frame(0x2, b"\x01" + b"L" * 300)  # 16-bit length
+    huge = _ws_frame(0x2, b"\x01" + b"H" * 70_000)  # 64-bit length
+    part = _ws_frame(0x2, b"\x01" + b"p" * 10, fin=False)  # a fragment: never dropped
+    ping = _ws_frame(0x9, b"")
+    whole = data + advert + time_ + long + huge + part + ping
+    buf = bytearray(whole + huge[:1000])  # and the start of one more
+    got = split_frames(buf)
+    assert [f for f, _ in got] == [data, advert, time_, long, huge, part, ping]
+    assert [d for _, d in got] == [True, False, False, True, True, False, False]
+    assert bytes(buf) == huge[:1000]  # the part frame stays for the next read
+    buf += huge[1000:]
+    assert split_frames(buf) == [(huge, True)] and not buf
+    for cut in (1, 3, 9):  # a head cut inside its extended length: nothing yet
+        buf = bytearray(huge[:cut])
+        assert split_frames(buf) == [] and len(buf) == cut
+
+
+def test_the_front_drops_and_counts_for_a_viewer_that_never_reads(monkeypatch):
+    """Per client: a bounded outbox that drops Message Data (counted), a send timeout that
+    lets a stalled client go (counted); a client that reads gets every message meanwhile."""
+    from bench.mcaplog import foxglove_front as front
+    from bench.mcaplog.foxglove_ws import WsChannels
+    from tests.foxglove_client import Client
+
+    monkeypatch.setattr(front, "OUTBOX_BYTES", 64 * 1024)
+    monkeypatch.setattr(front, "SEND_TIMEOUT_S", 2.0)
+    n, size = 4000, 1000  # 4 MB: far more than a stalled client's buffers hold
+    ws = WsChannels(port=0)
+    stalled = None
+    try:
+        sid = ws.add_schema("bench.Raw", "jsonschema", b'{"type": "object"}')
+        cid = ws.add_channel("/can/frames", "json", sid)
+        reader = Client(ws.port).start()
+        stalled = StalledClient(ws.port).subscribe("/can/frames")
+        time.sleep(0.5)  # the SDK takes the subscriptions (not a bound: a settle)
+        payloads = [b'{"k": "' + f"{k:08d}".encode() + b"x" * (size - 17) + b'"}' for k in range(n)]
+        deadline = time.monotonic() + GUARD_S
+        step = 20  # 20 kB a time, well inside an outbox: paced by the reader that reads
+        for k in range(0, n, step):
+            ws.add_messages(
+                cid, list(range(k + 1, k + step + 1)), payloads[k : k + step], [0] * step
+            )
+            while reader.received.counts().get("/can/frames", 0) < k + step:
+                assert time.monotonic() < deadline, (k, ws.front.counts)
+                time.sleep(0.005)
+        while ws.front.counts.clients_cut < 1:
+            assert time.monotonic() < deadline, ws.front.counts
+            time.sleep(0.05)
+        got = reader.wait_quiet(quiet_s=1.0).counts().get("/can/frames", 0)
+        dropped = ws.front.counts.messages_dropped
+        stalled.sock.settimeout(GUARD_S)
+        assert stalled.was_let_go()
+        kept = 0  # what reached the stalled client before it was let go, then the reset
+        with contextlib.suppress(ConnectionResetError):
+            while data := stalled.sock.recv(1 << 20):
+                kept += len(data)
+    finally:
+        ws.abort()
+        if stalled is not None:
+            stalled.close()
+    reader.stop()
+    assert got == n  # the viewer that reads lost nothing to the one that does not
+    assert ws.front.counts.clients_cut == 1
+    assert 0 < dropped < n
+    assert kept < (n - dropped) * (size + 13 + 4)  # never more than was not dropped
+
+
+def test_a_stalled_client_of_the_sdks_own_port_does_not_hold_the_close():
+    """The SDK's ``stop`` waits for a stalled client forever; a local process can reach the
+    SDK's own port (behind the front) and stall there: closing the stream still ends."""
+    from bench.mcaplog.foxglove_ws import WsChannels
+
+    ws = WsChannels(port=0)
+    stalled = None
+    try:
+        sid = ws.add_schema("bench.Raw", "jsonschema", b'{"type": "object"}')
+        cid = ws.add_channel("/can/frames", "json", sid)
+        stalled = StalledClient(int(ws.server.port), "foxglove.sdk.v1").subscribe()
+        time.sleep(0.5)  # the SDK takes the subscription (a settle, not a bound)
+        n = 20_000  # 20 MB for a client that reads none of it
+        ws.add_messages(cid, list(range(1, n + 1)), [b"{}" + b" " * 998] * n, [0] * n)
+        closing = threading.Thread(target=ws.abort, daemon=True)
+        closing.start()
+        closing.join(GUARD_S)  # without the bound: forever
+        assert not closing.is_alive()
+        assert ws.closed
+    finally:
+        if stalled is not None:
+            stalled.close()

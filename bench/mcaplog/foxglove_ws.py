@@ -12,8 +12,11 @@ The receive path never waits on it: like the MCAP log it runs in a writer proces
 at idle priority, off the live CPU (:func:`bench.mcaplog.foxglove_stream.stream_sink`), fed
 from the runner's sinks (the
 processing thread only enqueues; a full queue drops the step and counts it in ``dropped``).
-Each connected client has the SDK's own bounded backlog (``BACKLOG`` messages; the SDK drops
-the oldest when a slow client falls behind).
+A viewer never holds the run: between the SDK and each client the front keeps a bounded
+outbox of the client's own that drops (and counts) Message Data for a client that falls
+behind, and disconnects one that takes nothing for a few seconds
+(:mod:`bench.mcaplog.foxglove_front`); what slow viewers cost comes back in
+``viewer_counts`` and is warned once at the end of the run.
 
 The SDK (0.30) speaks the protocol under the subprotocol name ``foxglove.sdk.v1`` only, the
 same protocol as ``foxglove.websocket.v1`` renamed; the Foxglove app offers both, older
@@ -25,7 +28,9 @@ SubprotocolFront` on the address asked for, accepting both names.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
+import threading
 import time
 from collections import Counter
 from collections.abc import Mapping, Sequence
@@ -46,6 +51,8 @@ DEFAULT_PORT = 8765
 BACKLOG = 65_536
 """Messages the SDK buffers per client: a 0.25 s group at 1 kHz x 3 channels is ~5 000."""
 SERVER_NAME = "gradient bench"
+STOP_TIMEOUT_S = 5.0
+"""How long stopping the SDK's server may wait for its clients (see WsChannels.abort)."""
 LINGER_S = 0.5
 """How long the server stays up after the last message of a run (see WsChannels.finish)."""
 
@@ -172,10 +179,20 @@ class WsChannels:
         self.abort()
 
     def abort(self) -> None:
+        """Stop the SDK's server, then the front. The SDK's ``stop`` waits for its clients:
+        the front always reads, but a local process that connected to the SDK's own port
+        and stalled held it forever; so it gets ``STOP_TIMEOUT_S`` in a thread of its own
+        (the thread does not hold the process's exit)."""
         if not self.closed:
             self.closed = True
-            with contextlib.suppress(Exception):
-                self.server.stop()
+
+            def stop() -> None:
+                with contextlib.suppress(Exception):
+                    self.server.stop()
+
+            stopping = threading.Thread(target=stop, name="foxglove-stop", daemon=True)
+            stopping.start()
+            stopping.join(STOP_TIMEOUT_S)
             self.front.close()
 
 
@@ -202,9 +219,14 @@ def foxglove_sink_class() -> type:
             super().__init__(stream_label(host, port), config, metadata, attachments, **options)
 
         def _open_file(self, chunk_size: int, compression: str) -> Any:
-            ws = WsChannels(self.host, self.port)
+            ws = self._ws = WsChannels(self.host, self.port)
             self.port = ws.port
             self.path = Path(stream_label(self.host, ws.port))
             return ws
+
+        def viewer_counts(self) -> dict[str, int]:
+            """What slow viewers cost so far (messages dropped, clients disconnected)."""
+            ws = getattr(self, "_ws", None)
+            return {} if ws is None else dataclasses.asdict(ws.front.counts)
 
     return FoxgloveSink

@@ -131,6 +131,7 @@ def _writer_status(sink: McapSink) -> dict[str, Any]:
         "errors": sink.errors,
         "error": sink.error,
         "port": getattr(sink, "port", None),
+        "viewers": sink.viewer_counts() if hasattr(sink, "viewer_counts") else {},
     }
 
 
@@ -199,6 +200,22 @@ def _writer_main(conn: Connection) -> None:
 
 
 # -- the bench process's side ----------------------------------------------------------------
+def viewer_warning(counts: Mapping[str, int]) -> str:
+    """The end-of-run line for what slow Foxglove viewers cost ("" when nothing)."""
+    from bench.mcaplog.foxglove_front import SEND_TIMEOUT_S
+
+    dropped, cut = counts.get("messages_dropped", 0), counts.get("clients_cut", 0)
+    parts = []
+    if dropped:
+        parts.append(f"{dropped} messages dropped for viewers that fell behind")
+    if cut:
+        parts.append(
+            f"{cut} viewer{'s' if cut > 1 else ''} disconnected "
+            f"(did not take what was sent within {SEND_TIMEOUT_S:g} s)"
+        )
+    return "; ".join(parts) + " (the run and its log are not affected)" if parts else ""
+
+
 class McapProcessSink(QueuedSink):
     """McapSink's interface (a Sink: ``write``, ``mark``, ``close``, ``status``) with the
     encoding in a writer process. ``write`` only enqueues (bounded; a full queue drops the
@@ -223,6 +240,8 @@ class McapProcessSink(QueuedSink):
         self._is_log = options.get("sink", "mcap") == "mcap"
         self.frames_sent = 0  # frames handed to the writer process
         self.port: int | None = None  # a live Foxglove stream's port (from the writer)
+        self.viewer_counts: dict[str, int] = {}  # what slow viewers cost (the live stream)
+        self._host = options.get("host", "")  # the live stream's address (its warnings)
         options = dict(options, flush_interval_s=flush_interval_s)
         # a session of its own: a terminal's Ctrl-C or hang-up is the bench process's to handle
         self._conn, self._proc = start_child(
@@ -247,6 +266,15 @@ class McapProcessSink(QueuedSink):
         with contextlib.suppress(OSError):
             self._conn.close()
         end_child(self._proc, 10.0)
+        if warning := viewer_warning(self.viewer_counts):
+            log.warning("Foxglove live stream on %s: %s", self._stream_label(), warning)
+
+    def _stream_label(self) -> str:
+        """The live stream's address with its bound port (``self.path`` is a Path, which
+        folds ``ws://`` to ``ws:/``, and holds the port asked for, perhaps 0)."""
+        from bench.mcaplog.foxglove_ws import stream_label
+
+        return stream_label(str(self._host), self.port if self.port is not None else 0)
 
     # -- sender thread ---------------------------------------------------------------------
     def _await_first(self) -> None:
@@ -261,6 +289,7 @@ class McapProcessSink(QueuedSink):
     def _take(self, status: dict[str, Any]) -> None:
         if status.get("port") is not None:
             self.port = int(status["port"])  # the live stream's bound port
+        self.viewer_counts = dict(status.get("viewers") or self.viewer_counts)
         self.frames_logged = int(status["frames_logged"])
         self.bytes_written = int(status["bytes_written"])
         self.frames_lost = max(self.frames_lost, int(status["frames_lost"]))
