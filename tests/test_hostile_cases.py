@@ -60,12 +60,19 @@ The test below fails when a case names a test that no longer exists.
 15a a FIFO or `/dev/zero` as the log replayed
     -> test_hostile_inputs::test_fifo_log_is_refused
     -> test_hostile_inputs::test_dev_zero_log_is_refused
+15b a FIFO or `/dev/zero` given to `bench log info`/`log export` (an MCAP opener of its own)
+    -> test_hostile_paths::test_an_mcap_log_that_is_a_fifo_is_refused
+    -> test_hostile_paths::test_log_info_and_export_of_a_device_are_refused
 16  a FIFO among `bench fleet`'s logs waits forever
     -> test_hostile_loss::test_fleet_rows_of_logs_without_frames_are_errors
 17  a Foxglove client that subscribes and never reads holds `--duration 10` for minutes;
     SIGTERM does not end it
     -> test_hostile_viewer::test_a_viewer_that_never_reads_does_not_hold_the_run_past_its_duration
     -> test_hostile_viewer::test_sigterm_ends_a_run_whose_viewer_never_reads
+17a per client a bounded outbox that drops and counts, a send timeout that lets it go
+    -> test_hostile_viewer::test_the_front_drops_and_counts_for_a_viewer_that_never_reads
+    -> test_hostile_viewer::test_a_run_says_what_a_stalled_viewer_cost
+    -> test_hostile_viewer::test_a_stalled_client_of_the_sdks_own_port_does_not_hold_the_close
 18  `bench fleet --workers 100000` grows memory without answering
     -> test_hostile_records::test_bad_fleet_options_are_one_line
 19  random bytes named `.log`, a cut `.mcap` with 0 frames: "replayed", exit 0

@@ -299,3 +299,35 @@ def test_steps_file_that_is_a_fifo_is_refused(fifo, tmp_path):
     plan.write_text(PLAN)
     argv = ["accept", str(plan), "--out", str(tmp_path / "acc"), "--steps", str(fifo)]
     _refused(guarded(argv, tmp_path), str(fifo))
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["log", "info"],
+        ["log", "export", "--csv", "out.csv"],
+        ["replay", "--csv", "out.csv"],
+        ["calibrate", "--out", "cal.toml"],
+        ["play", "-i", "virtual", "-c", "hostile-paths"],
+    ],
+    ids=lambda a: " ".join(a[:2]),
+)
+def test_an_mcap_log_that_is_a_fifo_is_refused(tmp_path, argv):
+    """`bench log info` and `bench log export` of a FIFO waited for a writer forever."""
+    pipe = tmp_path / "pipe.mcap"
+    os.mkfifo(pipe)
+    r = guarded(
+        [*argv[:2], str(pipe), *argv[2:]] if argv[0] == "log" else [argv[0], str(pipe), *argv[1:]],
+        tmp_path,
+    )
+    _refused(r, str(pipe))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe.mcap"]  # nothing written
+
+
+@pytest.mark.parametrize("argv", [["log", "info"], ["log", "export", "--csv"]])
+def test_log_info_and_export_of_a_device_are_refused(tmp_path, argv):
+    """/dev/zero was read as an empty MCAP file: exit 0, and export wrote a 0-row CSV."""
+    out = [str(tmp_path / "out.csv")] if argv[-1] == "--csv" else []
+    r = guarded([*argv[:2], "/dev/zero", *argv[2:], *out], tmp_path)
+    _refused(r, "/dev/zero")
+    assert not list(tmp_path.iterdir())

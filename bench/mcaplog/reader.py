@@ -76,6 +76,7 @@ from bench.mcaplog.structure import (
     walk_chunk,
 )
 from devices.base import SourceBatch, SourceNotice
+from devices.paths import regular_file_problem
 from protocol.frames import empty_frames
 from protocol.records import LinkError
 
@@ -93,6 +94,9 @@ class McapLog:
     def __init__(self, path: str | Path, *, verify_crc: bool = True) -> None:
         self.path = Path(path)
         self.verify_crc = verify_crc
+        why = regular_file_problem(self.path)  # before opening: a FIFO's open waits forever
+        if why.startswith("not a regular file"):
+            raise McapReadError(f"{self.path}: cannot open: {why}")
         try:
             self._fh = open(self.path, "rb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
