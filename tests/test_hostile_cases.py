@@ -39,6 +39,8 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_loss::test_a_device_log_that_changes_while_replayed_is_an_error
 9   two channels named `/can/frames`: 1 650 of 3 300 frames, `log info` 1 650
     -> test_hostile_loss::test_every_channel_of_can_frames_is_replayed
+9a  a channel of another schema on `/can/frames`: read as RawFrames, whole chunks skipped
+    -> test_hostile_loss::test_a_foreign_channel_on_can_frames_costs_no_frame_and_is_warned
 10  BLF first object size 0xFFFFFFF0: 2 730 of 3 300, no warning
     -> test_hostile_loss::test_blf_whose_first_object_size_is_absurd_loses_nothing_and_says_so
 11  UTF-8 BOM before `.trc` (every frame lost), `.asc`, candump (line 1 lost)

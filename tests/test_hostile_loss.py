@@ -81,6 +81,34 @@ def test_every_channel_of_can_frames_is_replayed(tmp_path, capsys):
     assert info["frames"] == N and info["topics"][S.FRAME_TOPIC] == N
 
 
+def test_a_foreign_channel_on_can_frames_costs_no_frame_and_is_warned(tmp_path, capsys):
+    """A JSON channel of another schema on /can/frames (the spec lets any channel use any
+    topic) was read as 38-byte RawFrames: chunks skipped, 560 of 600 frames replayed."""
+    n = 600
+    path = tmp_path / "foreign.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=4096, compression=CompressionType.ZSTD)
+        w.start(profile="", library="someone-else")
+        sid = w.register_schema(S.FRAME_SCHEMA_NAME, "protobuf", S.FRAME_SCHEMA_DATA)
+        other = w.register_schema("foxglove.Log", "jsonschema", b'{"type": "object"}')
+        ours = w.register_channel(S.FRAME_TOPIC, "protobuf", sid)
+        theirs = w.register_channel(S.FRAME_TOPIC, "json", other)
+        for k in range(n):
+            t = int((1000.0 + k / 600) * 1e9)
+            w.add_message(ours, t, raw_frame(t / 1e9, 0x101 + k % 3, k.to_bytes(8, "little")), t)
+            w.add_message(theirs, t, b'{"message": "someone else\'s"}', t)
+        w.finish()
+    code, got, err = _replayed(capsys, path)
+    assert code == 0 and got == str(n), err
+    note = f"channel {theirs} on /can/frames is not the bench's RawFrame (schema 'foxglove.Log'"
+    assert note in err and f"its {n} messages are not frames" in err, err
+    assert "parse_error" not in err, err
+    assert main(["log", "info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames"] == n
+    assert info["topics"] == {S.FRAME_TOPIC: n, f"{S.FRAME_TOPIC} [foxglove.Log]": n}
+
+
 # -- BLF with an absurd object size ----------------------------------------------------------
 def test_blf_whose_first_object_size_is_absurd_loses_nothing_and_says_so(tmp_path, capsys, frames):
     """0xFFFFFFF0 in the first container's size: 2 730 of 3 300 frames, no warning."""

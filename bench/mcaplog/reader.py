@@ -120,6 +120,7 @@ class McapLog:
         self.warnings: list[str] = []
         self.bad_chunks: list[tuple[ChunkInfo, str]] = []
         self.damage: list[str] = []  # what the scan stepped over (see recovery.resync)
+        self.foreign_notes: list[str] = []  # channels on /can/frames that are not frames
         self._summary = SummaryAhead()
         self._zstd: Any = None
         try:
@@ -128,6 +129,7 @@ class McapLog:
                 self._read_footer()
             elif self._summary.channels or self.chunks:
                 self._definitions_from_chunks()
+            self._note_foreign_frame_channels()
         except BaseException:
             self.close()
             raise
@@ -161,16 +163,48 @@ class McapLog:
         return min(ids) if ids else None
 
     def channel_ids(self, topic: str) -> set[int]:
-        """Every channel of ``topic``: all of them are read."""
-        return {ch.id for ch in self.channels.values() if ch.topic == topic}
+        """Every channel of ``topic`` that is the bench's: all of them are read (a channel
+        of another schema on /can/frames is not: :meth:`foreign`)."""
+        return {
+            ch.id for ch in self.channels.values() if ch.topic == topic and not self.foreign(ch)
+        }
+
+    def foreign(self, ch: ChannelInfo) -> bool:
+        """A channel on /can/frames that is not the bench's RawFrame: another message
+        encoding, or a schema of another name (the spec lets any channel use any topic; read
+        as fixed 38-byte records its messages cost the bench's own frames their chunk). A
+        channel without a schema is judged by its content, record by record."""
+        if ch.topic != S.FRAME_TOPIC:
+            return False
+        if ch.message_encoding != "protobuf":
+            return True
+        schema = self.schemas.get(ch.schema_id)
+        return schema is not None and schema.name != S.FRAME_SCHEMA_NAME
+
+    def _note_foreign_frame_channels(self) -> None:
+        """A warning for each foreign channel on /can/frames, with its messages not read."""
+        foreign = [ch for _, ch in sorted(self.channels.items()) if self.foreign(ch)]
+        if not foreign:
+            return
+        counts = self._channel_counts()
+        for ch in foreign:
+            schema = self.schemas.get(ch.schema_id)
+            name = schema.name if schema is not None else "none"
+            self.foreign_notes.append(
+                f"{self.path}: channel {ch.id} on {ch.topic} is not the bench's RawFrame "
+                f"(schema {name!r}, {ch.message_encoding or 'no'} encoding): its "
+                f"{counts.get(ch.id, 0)} messages are not frames and are not replayed"
+            )
+        self.warnings += self.foreign_notes
 
     def _aliases(self) -> dict[int, int]:
         """Channel id -> the id its topic is read under (:meth:`channel_id`), for the
-        channels that share a topic with a lower id."""
+        bench's channels that share a topic with a lower id (a foreign one keeps its own)."""
         first: dict[str, int] = {}
-        for cid in sorted(self.channels):
-            first.setdefault(self.channels[cid].topic, cid)
-        return {c: first[ch.topic] for c, ch in self.channels.items() if first[ch.topic] != c}
+        ours = {cid: ch for cid, ch in sorted(self.channels.items()) if not self.foreign(ch)}
+        for cid, ch in ours.items():
+            first.setdefault(ch.topic, cid)
+        return {c: first[ch.topic] for c, ch in ours.items() if first[ch.topic] != c}
 
     def _with_aliases(self, channels: set[int] | None) -> set[int] | None:
         if channels is None:
@@ -624,6 +658,10 @@ class McapLog:
     def message_counts(self) -> dict[str, int]:
         """Messages per topic, from the MessageIndex records (no decompression) where
         they are intact, else by walking the chunk."""
+        return self.per_topic(self._channel_counts())
+
+    def _channel_counts(self) -> Counter[int]:
+        """Messages per channel (see :meth:`message_counts`)."""
         counts: Counter[int] = Counter()
         for info in self.chunks:
             if info.indexed:
@@ -634,14 +672,21 @@ class McapLog:
                 if buf is not None:
                     for cid, offs in walk_chunk(buf, None).items():
                         counts[cid] += len(offs)
-        return self.per_topic(counts)
+        return counts
 
     def per_topic(self, counts: Mapping[int, int]) -> dict[str, int]:
-        """Messages per channel as messages per topic (channels sharing a topic together)."""
+        """Messages per channel as messages per topic (channels sharing a topic together;
+        a foreign channel on /can/frames under ``/can/frames [its schema]``)."""
         by_topic: Counter[str] = Counter()
         for cid, ch in sorted(self.channels.items()):
-            by_topic[ch.topic] += counts.get(cid, 0)
+            by_topic[self._topic_label(ch)] += counts.get(cid, 0)
         return dict(by_topic)
+
+    def _topic_label(self, ch: ChannelInfo) -> str:
+        if not self.foreign(ch):
+            return ch.topic
+        schema = self.schemas.get(ch.schema_id)
+        return f"{ch.topic} [{schema.name if schema is not None else ch.message_encoding}]"
 
     def verify(self) -> list[str]:
         """Check every CRC in the file (data section, summary, chunks, attachments);

@@ -95,6 +95,7 @@ class McapFrameSource(FileSource):
             for info, why in self.log.bad_chunks[bad_seen:]
         ]
         notices += [SourceNotice(last_t, "parse_error", d) for d in self.log.damage]
+        notices += [SourceNotice(last_t, "info", d) for d in self.log.foreign_notes]
         if self.log.truncated:
             notices.append(SourceNotice(last_t, "truncated", self.log.truncation))
         self._position = self.log.size
