@@ -33,6 +33,7 @@ The test below fails when a case names a test that no longer exists.
 7a  a failed run leaves no half file under the real name
     -> test_hostile_paths::test_a_failed_replay_keeps_what_the_outputs_held
     -> test_hostile_paths::test_an_interrupted_emulation_leaves_no_half_file
+    -> test_hostile_paths::test_a_truth_csv_that_fails_part_way_leaves_the_name_as_it_was
 8   an MCAP truncated while replayed: SIGBUS, no message
     -> test_hostile_loss::test_an_mcap_that_shrinks_while_replayed_is_an_error_not_sigbus
     -> test_hostile_loss::test_mcap_reader_reports_a_shrunk_file_at_the_chunk_it_cannot_read

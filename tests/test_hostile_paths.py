@@ -331,3 +331,23 @@ def test_log_info_and_export_of_a_device_are_refused(tmp_path, argv):
     r = guarded([*argv[:2], "/dev/zero", *argv[2:], *out], tmp_path)
     _refused(r, "/dev/zero")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_truth_csv_that_fails_part_way_leaves_the_name_as_it_was(tmp_path, monkeypatch):
+    """`bench emulate --realtime --truth T` wrote T in place: a failure left half a file."""
+    import numpy as np
+
+    from devices.emulator import player, stream_out
+
+    out = tmp_path / "truth.csv"
+    out.write_text("the earlier truth\n")
+
+    def failing(f, truth, header):  # the header and a row, then the disk is full
+        f.write(b"t_s,...\n0.0,...\n")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(stream_out, "write_truth_rows", failing)
+    with pytest.raises(player.BenchError, match="No space left"):
+        player.write_truth_csv(out, np.zeros(3))
+    assert out.read_text() == "the earlier truth\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["truth.csv"]

@@ -337,12 +337,14 @@ def write_output(
 
 
 def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:
-    """The truth as CSV, one row per sampling instant (columns: engine.TRUTH_COLUMNS)."""
+    """The truth as CSV, one row per sampling instant (columns: engine.TRUTH_COLUMNS),
+    whole or not at all (a temporary name renamed into place)."""
     from devices.emulator.stream_out import write_truth_rows
+    from devices.paths import staged
 
     p = Path(path)
     try:
-        with p.open("wb") as f:
+        with staged(p) as tmp, tmp.open("wb") as f:
             write_truth_rows(f, truth, header=True)
     except OSError as exc:
         raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
