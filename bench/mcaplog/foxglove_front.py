@@ -30,6 +30,7 @@ import contextlib
 import socket
 import struct
 import threading
+import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -142,6 +143,7 @@ class SubprotocolFront:
     def __init__(self, host: str, port: int, inner_port: int) -> None:
         self.inner_port = inner_port
         self.counts = ViewerCounts()
+        self.last_read = time.monotonic()  # when bytes last came from the SDK (any client)
         self._loop = asyncio.new_event_loop()
         self._tasks: set[asyncio.Task[None]] = set()
         try:
@@ -219,7 +221,7 @@ class SubprotocolFront:
     async def _outbox(self, src: asyncio.StreamReader, dst: asyncio.StreamWriter) -> None:
         """The SDK's frames to one client: read as they come, queued (Message Data
         dropped beyond ``OUTBOX_BYTES``), written with a send timeout."""
-        box = _Outbox(self.counts)
+        box = _Outbox(self)
         reading = asyncio.ensure_future(box.take(src))
         try:
             await box.give(dst)
@@ -243,8 +245,9 @@ def _reset(writer: asyncio.StreamWriter) -> None:
 class _Outbox:
     """One client's queue of frames from the SDK (see the module's docstring)."""
 
-    def __init__(self, counts: ViewerCounts) -> None:
-        self.counts = counts
+    def __init__(self, front: SubprotocolFront) -> None:
+        self.front = front
+        self.counts = front.counts
         self.frames: deque[bytes] = deque()
         self.queued = 0  # bytes in ``frames``
         self.ready = asyncio.Event()
@@ -255,6 +258,7 @@ class _Outbox:
         buf = bytearray()
         try:
             while not self.over and (data := await src.read(CHUNK)):
+                self.front.last_read = time.monotonic()
                 buf += data
                 for frame, droppable in split_frames(buf):
                     if droppable and self.queued + len(frame) > OUTBOX_BYTES:

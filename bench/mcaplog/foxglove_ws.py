@@ -55,6 +55,9 @@ STOP_TIMEOUT_S = 5.0
 """How long stopping the SDK's server may wait for its clients (see WsChannels.abort)."""
 LINGER_S = 0.5
 """How long the server stays up after the last message of a run (see WsChannels.finish)."""
+LINGER_MAX_S = 3.0
+"""The longest the server stays up after a run while the SDK is still sending (the
+writer process is given 10 s to end: this, the SDK's stop and the front's close fit)."""
 
 
 def stream_label(host: str, port: int) -> str:
@@ -172,10 +175,17 @@ class WsChannels:
         pass
 
     def finish(self) -> None:
-        """The run is over: give connected clients ``LINGER_S`` to receive the last
-        messages (the final health snapshot), then stop the server."""
+        """The run is over: let the SDK hand its last messages (the final health snapshot)
+        to the front, which then delivers them: until nothing has come from the SDK for
+        ``LINGER_S`` (at most ``LINGER_MAX_S``; the SDK drops what it still holds when it
+        stops, and at idle priority under load it can take seconds), then stop the server."""
         if not self.closed:
+            deadline = time.monotonic() + LINGER_MAX_S
             time.sleep(LINGER_S)
+            while time.monotonic() < deadline:
+                if time.monotonic() - self.front.last_read >= LINGER_S:
+                    break  # quiet: the SDK has handed over everything
+                time.sleep(0.05)
         self.abort()
 
     def abort(self) -> None:
