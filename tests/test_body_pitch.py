@@ -27,6 +27,7 @@ STEP = f"""
 duration_s = 40.0
 sample_rate_hz = 100
 initial_speed_mps = 10.0
+body_modes.enabled = false  # the suspension's pitch alone (issue 25)
 [body_pitch]
 compliance_deg_per_mps2 = {C}
 frequency_hz = {F}

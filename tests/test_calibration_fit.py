@@ -52,6 +52,7 @@ HOP = [
 ]
 TILT_STEPS = {
     "seed": 31,
+    "body_modes": {"enabled": False},  # fits pinned before the body modes (issue 25)
     "duration_s": 130.0,
     "initial_position_m": 50.0,
     "vertical_curve_m": 20.0,
@@ -67,6 +68,7 @@ TABLE = np.array(
 
 IN_MOTION = {
     "seed": 32,
+    "body_modes": {"enabled": False},  # fits pinned before the body modes (issue 25)
     "duration_s": 250.0,
     "vertical_curve_m": 120.0,
     "vertical_curve_accel": True,  # a real car feels the v^2/R of its vertical curves

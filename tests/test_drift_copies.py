@@ -88,6 +88,7 @@ def test_the_copies_give_the_same_bits_however_the_stream_is_cut() -> None:
                 "track": [{"length_m": 1000.0, "gradient_permil": 20.0}],
                 "channels": [{"noise_mps2": 0.0098}] * 3,
                 "odometer": {"noise_mps": 0.005, "resolution_mps": 0.02},
+                "body_modes": {"enabled": False},  # pinned before the body modes (issue 25)
                 "faults": [
                     {"channel": 3, "kind": "drift", "start_s": 3.0, "rate_mps2_per_s": RATE}
                 ],

@@ -35,6 +35,7 @@ MOUNT = """
 seed = 5
 duration_s = 20.0
 sample_rate_hz = 50
+body_modes.enabled = false  # the mounting's tone alone (issue 25)
 [body_pitch]
 enabled = false  # a load step at the station would shift the fitted tone
 [standstill]
@@ -97,6 +98,7 @@ seed = 6
 duration_s = 20.0
 sample_rate_hz = 50
 initial_speed_mps = 20.0
+body_modes.enabled = false  # the body's tone and band alone (issue 25)
 [vibration]
 vertical_mps2 = {tone}
 frequency_hz = 20.0

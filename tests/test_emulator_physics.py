@@ -26,6 +26,7 @@ sample_rate_hz = 100
 g = {G}
 speed_ref = true
 vertical_curve_m = 40.0
+body_modes.enabled = false  # nor has it modes of its own (issue 25)
 [body_pitch]
 enabled = false  # the hand formula below is the ICD's, of a body that does not pitch
 [standstill]
@@ -251,7 +252,8 @@ def test_over_range_clips_with_ovr():
 
 def test_white_noise_has_the_configured_deviation():
     sc = parse_scenario(
-        "duration_s = 50.0\nspeed_ref = false\n[body_pitch]\nenabled = false\n"
+        "duration_s = 50.0\nspeed_ref = false\nbody_modes.enabled = false\n"
+        "[body_pitch]\nenabled = false\n"
         "[standstill]\nenabled = false\n"
         "[[channels]]\nnoise_mps2 = 0.01\n"
         "[[channels]]\n[[channels]]\nnoise_mps2 = 0.002\n",

@@ -256,6 +256,7 @@ def test_odometer_quantisation_and_latency():
 VIB = """
 duration_s = 8.0
 sample_rate_hz = 200
+body_modes.enabled = false  # the body's tone alone (issue 25)
 initial_speed_mps = {v}
 [board]
 antialias_filter = false  # the tones below are unfiltered (issue 25)
@@ -307,6 +308,7 @@ def test_broadband_vibration_has_its_rms_inside_its_band():
             sample_rate_hz = 200
             seed = 5
             initial_speed_mps = 20.0
+            body_modes.enabled = false  # the band alone (issue 25)
             [vibration]
             broadband_vertical_mps2 = 0.1
             broadband_longitudinal_mps2 = 0.04
@@ -334,6 +336,7 @@ duration_s = 20.0
 sample_rate_hz = 100
 initial_speed_mps = 20.0
 vertical_curve_accel = true
+body_modes.enabled = false  # v^2/R alone (issue 25)
 [standstill]
 enabled = false  # v^2/R alone
 [[track]]

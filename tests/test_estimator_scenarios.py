@@ -25,8 +25,9 @@ NO_HUM = {"enabled": False}  # [standstill]: the bounds below are of a car witho
 
 
 def run(scenario: dict[str, Any], config: Config | None = None) -> tuple[np.ndarray, ...]:
-    """(results, events, truth per result row) of an emulated run through the pipeline."""
-    sim = simulate(scenario_from_dict(scenario))
+    """(results, events, truth per result row) of an emulated run through the pipeline.
+    These are the plans' ideal worlds: no car-body modes (they opt out, issue 25)."""
+    sim = simulate(scenario_from_dict({"body_modes": {"enabled": False}} | scenario))
     pipe = Pipeline(config or Config())
     steps = [pipe.process(SourceBatch(sim.frames)), pipe.finish()]
     res = np.concatenate([s.results for s in steps])

@@ -30,6 +30,7 @@ seed = 5
 duration_s = 3.0
 sample_rate_hz = 200
 initial_speed_mps = 10.0
+body_modes.enabled = false  # the plan's 0.5 permil predates the body modes (issue 25)
 """
     + LEVEL_GRADE
     + """

@@ -20,6 +20,7 @@ import numpy as np
 from devices.emulator import faults as fx
 from devices.emulator.antialias import gain_of
 from devices.emulator.board import FrameSet, adc_frames
+from devices.emulator.body_modes import BodyModes
 from devices.emulator.body_pitch import BodyPitch, pitched_specific_force, scenario_stations
 from devices.emulator.motion import scenario_motion
 from devices.emulator.scenario import Fault, Scenario
@@ -96,6 +97,11 @@ class Engine:
         self.still = standstill_plan(sc, stations) if sc.standstill.enabled else None
         boarding = (self.still.board_t, self.still.board_deg) if self.still else None
         self.pitch = BodyPitch(sc, stations, boarding) if sc.body_pitch.enabled else None
+        self.modes = (
+            BodyModes.draw(sc.body_modes, fx.rng_for(seed, fx.LAYER_BODY_MODES))
+            if sc.body_modes.active
+            else None
+        )
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.next = 0  # the first instant of the next block
 
@@ -146,6 +152,10 @@ class Engine:
         extra = sc.vibration.active or sc.vertical_curve_accel or self.still is not None
         rise = board_temperature(sc.board, t) - sc.board.temperature_c
         pitch = self.pitch.deg(t) if self.pitch is not None else None
+        if self.modes is not None:  # bounce and bending along z, the pitch mode turns the axes
+            mode_z, mode_pitch = self.modes.felt(t, motion.speed_mps, rate)
+            body_z += mode_z
+            pitch = mode_pitch if pitch is None else pitch + mode_pitch
         values = np.empty((3, len(us)), dtype=np.float64)
         for i, ch in enumerate(sc.channels):
             if pitch is not None:  # the board sits on the pitching body

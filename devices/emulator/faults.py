@@ -30,6 +30,7 @@ LAYER_ODOMETER = 3
 LAYER_UART = 4
 LAYER_VIBRATION = 5
 LAYER_WHEEL = 6
+LAYER_BODY_MODES = 7  # issue 25: the car body's bounce, pitch and bending modes
 LAYER_BODY_PITCH = 11  # issue 25's physics: 11.. (other helpers' streams take 7..10)
 LAYER_STANDSTILL = 12
 

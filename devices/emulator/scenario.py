@@ -185,6 +185,43 @@ class StandstillModel:
 
 
 @dataclass(frozen=True, slots=True)
+class ModeModel:
+    """One car-body mode: RMS at the reference speed (m/s^2, or deg for pitch), natural
+    frequency and damping ratio (devices/emulator/body_modes.py)."""
+
+    rms: float
+    frequency_hz: float
+    damping: float
+
+
+MODE_DEFAULTS: dict[str, ModeModel] = {
+    "bounce": ModeModel(0.06, 1.2, 0.2),  # m/s^2 RMS: the body on its secondary suspension
+    "pitch": ModeModel(0.01, 1.5, 0.2),  # deg RMS: the body rocking about its centre
+    "bending": ModeModel(0.04, 9.0, 0.03),  # m/s^2 RMS: the shell's first vertical bending
+}
+MODE_UNITS = {"bounce": "rms_mps2", "pitch": "rms_deg", "bending": "rms_mps2"}
+
+
+@dataclass(frozen=True, slots=True)
+class BodyModesModel:
+    """The car body's bounce, pitch and bending modes at once, driven by the track; on by
+    default (a real car always has them). Amplitudes hold at ``reference_speed_mps`` and
+    scale with (|v| / reference)^exponent; none at standstill."""
+
+    enabled: bool = True
+    bounce: ModeModel = MODE_DEFAULTS["bounce"]
+    pitch: ModeModel = MODE_DEFAULTS["pitch"]
+    bending: ModeModel = MODE_DEFAULTS["bending"]
+    lever_m: float = 0.0  # the board's distance ahead of the pitch centre
+    reference_speed_mps: float = 20.0
+    speed_exponent: float = 1.0
+
+    @property
+    def active(self) -> bool:
+        return self.enabled and bool(self.bounce.rms or self.pitch.rms or self.bending.rms)
+
+
+@dataclass(frozen=True, slots=True)
 class Fault:
     index: int  # 1-based position in [[faults]]
     kind: str
@@ -231,6 +268,7 @@ class Scenario:
     vibration: VibrationModel = field(default_factory=VibrationModel)
     body_pitch: BodyPitchModel = field(default_factory=BodyPitchModel)
     standstill: StandstillModel = field(default_factory=StandstillModel)
+    body_modes: BodyModesModel = field(default_factory=BodyModesModel)
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -420,6 +458,31 @@ def _parse_standstill(file: str, value: Any, rate: int) -> StandstillModel:
     return m
 
 
+def _parse_body_modes(file: str, value: Any) -> BodyModesModel:
+    t = Table(file, "body_modes", value)
+    modes: dict[str, ModeModel] = {}
+    for name, default in MODE_DEFAULTS.items():
+        m = Table(file, f"body_modes.{name}", t.raw(name, {}))
+        unit = MODE_UNITS[name]
+        modes[name] = ModeModel(
+            rms=m.num(unit, default.rms, 0.0, 10.0),
+            frequency_hz=m.num("frequency_hz", default.frequency_hz, 0.0, 100.0, lo_open=True),
+            damping=m.num("damping", default.damping, 0.0, 0.5, lo_open=True),
+        )
+        m.done()
+    b = BodyModesModel(
+        enabled=t.flag("enabled", True),
+        bounce=modes["bounce"],
+        pitch=modes["pitch"],
+        bending=modes["bending"],
+        lever_m=t.num("lever_m", 0.0, -20.0, 20.0),
+        reference_speed_mps=t.num("reference_speed_mps", 20.0, 0.0, 150.0, lo_open=True),
+        speed_exponent=t.num("speed_exponent", 1.0, 0.0, 4.0, lo_open=True),
+    )
+    t.done((*MODE_DEFAULTS, "enabled", "lever_m", "reference_speed_mps", "speed_exponent"))
+    return b
+
+
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
@@ -537,6 +600,7 @@ _TOP_KEYS = (
     "vibration",
     "body_pitch",
     "standstill",
+    "body_modes",
     "faults",
 )
 
@@ -589,6 +653,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
         body_pitch=_parse_body_pitch(source, top.raw("body_pitch", {})),
         standstill=_parse_standstill(source, top.raw("standstill", {}), rate),
+        body_modes=_parse_body_modes(source, top.raw("body_modes", {})),
         faults=tuple(
             _parse_fault(source, i, item, duration)
             for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
