@@ -60,6 +60,7 @@ The test below fails when a case names a test that no longer exists.
 15  a plan whose `scenario` is `/dev/zero` or a FIFO (and a FIFO `--steps`)
     -> test_hostile_paths::test_plan_whose_scenario_is_not_a_file_is_refused
     -> test_hostile_paths::test_steps_file_that_is_a_fifo_is_refused
+    -> test_hostile_paths::test_a_reference_table_that_is_a_fifo_is_named_for_what_it_is
 15a a FIFO or `/dev/zero` as the log replayed
     -> test_hostile_inputs::test_fifo_log_is_refused
     -> test_hostile_inputs::test_dev_zero_log_is_refused

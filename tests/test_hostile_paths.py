@@ -351,3 +351,12 @@ def test_a_truth_csv_that_fails_part_way_leaves_the_name_as_it_was(tmp_path, mon
         player.write_truth_csv(out, np.zeros(3))
     assert out.read_text() == "the earlier truth\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["truth.csv"]
+
+
+def test_a_reference_table_that_is_a_fifo_is_named_for_what_it_is(work, tmp_path):
+    """`bench calibrate --reference pipe.csv` said "table file not found" of a FIFO."""
+    pipe = tmp_path / "steps.csv"
+    os.mkfifo(pipe)
+    argv = ["calibrate", str(work["mcap"]), "--reference", str(pipe), "--out", "cal.toml"]
+    _refused(guarded(argv, tmp_path), str(pipe))
+    assert not (tmp_path / "cal.toml").exists()

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from bench.errors import BenchError
-from devices.paths import check_clashes, write_file
+from devices.paths import check_clashes, regular_file_problem, write_file
 
 REFERENCE_HELP = (
     "what the recording is known to show: 'speed' (in motion, against SPEED_REF), 'level' "
@@ -47,8 +47,9 @@ def run(args: argparse.Namespace) -> int:
             raise BenchError(
                 f"--reference {reference!r}: expected speed, level or a .csv table of steps"
             )
-        if not Path(reference).is_file():
-            raise BenchError(f"--reference {reference}: table file not found")
+        if why := regular_file_problem(reference):  # a FIFO is no table: reading it waits
+            why = "table file not found" if why == "no such file" else f"cannot read it: {why}"
+            raise BenchError(f"--reference {reference}: {why}")
         table = read_table(reference)
         reference = "table"
     config = load_config(args.config)
