@@ -50,6 +50,7 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_inputs::test_utf8_bom_config_is_read
     -> test_hostile_loss::test_a_bom_in_a_scenario_and_a_plan_is_read
     -> test_hostile_loss::test_a_bom_in_a_steps_file_and_a_tilt_table_is_read
+    -> test_hostile_loss::test_a_bom_scenario_is_recorded_as_toml_reads_it
 12  a live CSV deleted, replaced by a folder or a symlink mid-run: exit 0, rows gone
     -> test_hostile_loss::test_a_live_csv_that_disappears_is_a_failure
 13  `--config /dev/zero` or a FIFO: replay and fleet wait forever

@@ -148,6 +148,19 @@ def test_a_bom_before_a_text_log_loses_no_frame(tmp_path, capsys, frames, suffix
     assert "warning" not in err and "parse_error" not in err, err
 
 
+def test_a_bom_scenario_is_recorded_as_toml_reads_it(tmp_path):
+    """An emulated MCAP kept the BOM in its ``scenario`` metadata: tomllib refuses that."""
+    import tomllib
+
+    sc = tmp_path / "s.toml"
+    sc.write_bytes(BOM + b"duration_s = 1.0\nseed = 1\n")
+    out = tmp_path / "o.mcap"
+    assert main(["emulate", str(sc), "--out", str(out), "-q"]) == 0
+    with McapLog(out) as lg:
+        recorded = lg.metadata_dict()["scenario"]["toml"]
+    assert tomllib.loads(recorded) == {"duration_s": 1.0, "seed": 1}
+
+
 def test_a_bom_in_a_steps_file_and_a_tilt_table_is_read(tmp_path):
     from bench.acceptance.answers import load_answers
     from bench.calibration import read_table

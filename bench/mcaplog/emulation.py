@@ -186,7 +186,10 @@ def _write(
         if scenario_path is not None:
             mf.add_metadata(
                 "scenario",
-                {"path": str(scenario_path), "toml": scen_bytes.decode("utf-8", "replace")},
+                {  # the text as TOML reads it: an editor's byte-order mark is no part of it
+                    "path": str(scenario_path),
+                    "toml": scen_bytes.decode("utf-8", "replace").removeprefix("\ufeff"),
+                },
             )
             mf.add_attachment(Path(scenario_path).name, scen_bytes, log_time=wall)
         topics = [S.truth_topic(truth_cols)] if truth_dtype is not None else []
