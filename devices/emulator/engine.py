@@ -13,6 +13,7 @@ repeats. Everything else is a function of the instant.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,9 +28,9 @@ from devices.emulator.scenario import Fault, Scenario
 from devices.emulator.standstill import plan as standstill_plan
 from devices.emulator.standstill import standstill_accel
 from devices.emulator.stream_carry import Spikes
+from devices.emulator.thermal import Thermal
 from devices.emulator.vibration import body_vibration
 from devices.emulator.world import (
-    board_temperature,
     body_specific_force,
     curve_normal_accel,
     gradient_profile,
@@ -102,6 +103,10 @@ class Engine:
             if sc.body_modes.active
             else None
         )
+        self.thermal = Thermal(sc, stations)
+        # each channel's bias random walk: its own generator, summed in sample order
+        self.walk = [fx.rng_for(seed, fx.LAYER_BIAS_WALK, i + 1) for i in range(len(sc.channels))]
+        self.walk_at = np.zeros(len(sc.channels))  # the walk at the last sample so far
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.next = 0  # the first instant of the next block
 
@@ -150,7 +155,6 @@ class Engine:
             still_x, still_z = standstill_accel(sc, self.still, t, self.rate)
             body_x, body_z = body_x + still_x, body_z + still_z
         extra = sc.vibration.active or sc.vertical_curve_accel or self.still is not None
-        rise = board_temperature(sc.board, t) - sc.board.temperature_c
         pitch = self.pitch.deg(t) if self.pitch is not None else None
         if self.modes is not None:  # bounce and bending along z, the pitch mode turns the axes
             mode_z, mode_pitch = self.modes.felt(t, motion.speed_mps, rate)
@@ -169,8 +173,25 @@ class Engine:
             else:
                 ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
             h = gain_of(ch.vibration_hz, self.rate, filtered)
+            rise = self.thermal.channel(i, t) - sc.board.temperature_c
             values[i] = sensor_output(ideal, ch, t, self.noise[i], rise, h)
         return values
+
+    def _add_walk(self, values: np.ndarray, first: bool) -> None:
+        """Each channel's bias random walk, b_n = q sqrt(1/rate) (z_1 + ... + z_n): zero at
+        the run's first sample (the sheet's bias), variance q^2 t. Summed with the carry in
+        front, in order, so any split into blocks gives the whole run's sums bit for bit."""
+        step = math.sqrt(1.0 / self.rate)
+        for i, ch in enumerate(self.sc.channels):
+            q = ch.bias_walk_mps2_per_sqrt_s
+            if not q:
+                continue
+            dz = np.asarray(q * step * self.walk[i].standard_normal(values.shape[1]))
+            if first:
+                dz[0] = 0.0
+            walk = np.cumsum(np.concatenate(([self.walk_at[i]], dz)))[1:]
+            self.walk_at[i] = walk[-1]
+            values[i] += walk
 
     def _truth(self, idx: np.ndarray, us: np.ndarray) -> np.ndarray:
         sc = self.sc
@@ -197,6 +218,8 @@ class Engine:
         values = self._sensors(us)
         m = len(idx)
         a = int(idx[0]) if m else 0
+        if m:
+            self._add_walk(values, a == 0)
         for f in sc.faults:
             if f.kind in ("drift", "saturate"):
                 rows = fx.apply_value_fault(values, f, us)

@@ -33,6 +33,7 @@ LAYER_WHEEL = 6
 LAYER_BODY_MODES = 7  # issue 25: the car body's bounce, pitch and bending modes
 LAYER_BODY_PITCH = 11  # issue 25's physics: 11.. (other helpers' streams take 7..10)
 LAYER_STANDSTILL = 12
+LAYER_BIAS_WALK = 13  # index: the channel (1..3)
 
 
 def rng_for(seed: int, layer: int, index: int = 0) -> np.random.Generator:

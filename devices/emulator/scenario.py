@@ -87,6 +87,10 @@ class ChannelModel:
     vibration_hz: float = 0.0
     vibration_phase_deg: float = 0.0
     bias_tempco_mps2_per_k: float = 0.0  # bias change per kelvin away from the start temperature
+    bias_walk_mps2_per_sqrt_s: float = (
+        0.0  # bias random walk: its sigma after T s is this * sqrt(T)
+    )
+    thermal_lag_s: float = 0.0  # the channel's own temperature lags the board's by this
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +98,7 @@ class BoardModel:
     temperature_c: int = 35  # at the start of the run (the calibration's temperature)
     temperature_end_c: float | None = None  # approached exponentially; None = stays constant
     temperature_tau_s: float = 900.0  # time constant of the approach
+    station_cooling_k: float = 0.0  # the target is this much lower while standing at a station
     supply_v: float = 24.0
     errors0: int = 0
     status_counter0: int = 0
@@ -333,6 +338,8 @@ def _parse_channels(file: str, items: list[Any]) -> tuple[ChannelModel, ChannelM
                 vibration_hz=t.num("vibration_hz", 0.0, 0.0, 100_000.0),
                 vibration_phase_deg=t.num("vibration_phase_deg", 0.0, -360.0, 360.0),
                 bias_tempco_mps2_per_k=t.num("bias_tempco_mps2_per_k", 0.0, -1.0, 1.0),
+                bias_walk_mps2_per_sqrt_s=t.num("bias_walk_mps2_per_sqrt_s", 0.0, 0.0, 1.0),
+                thermal_lag_s=t.num("thermal_lag_s", 0.0, 0.0, 1e6),
             )
         )
         t.done()
@@ -350,6 +357,7 @@ def _parse_board(file: str, value: Any, rate: int) -> BoardModel:
             t.num("temperature_end_c", 35.0, -128.0, 127.0) if t.has("temperature_end_c") else None
         ),
         temperature_tau_s=t.num("temperature_tau_s", 900.0, 0.0, 1e6, lo_open=True),
+        station_cooling_k=t.num("station_cooling_k", 0.0, -50.0, 50.0),
         supply_v=t.num("supply_v", 24.0, 0.0, 25.5),
         errors0=t.integer("errors0", 0, 0, 255),
         status_counter0=t.integer("status_counter0", 0, 0, 255),

@@ -15,11 +15,12 @@ import numpy as np
 
 from devices.emulator import faults as fx
 from devices.emulator.board import FrameSet, merge, speed_frames, status_frames
+from devices.emulator.body_pitch import scenario_stations
 from devices.emulator.engine import Engine
 from devices.emulator.motion import scenario_motion
 from devices.emulator.odometer import quantise_speed, wheel_error
 from devices.emulator.scenario import Fault, Scenario
-from devices.emulator.world import board_temperature
+from devices.emulator.thermal import Thermal
 from devices.errors import BenchError
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import (
@@ -340,7 +341,8 @@ def _status_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameS
     states = np.where(degraded, BoardState.DEGRADED, BoardState.RUN)
     counters = sc.board.status_counter0 + k + _jump_offsets(jumps, "status", when)
     b = sc.board
-    temps = np.clip(np.rint(board_temperature(b, when / 1e6)), -128, 127).astype(np.int64)
+    board_t = Thermal(sc, scenario_stations(sc)).board(when / 1e6)
+    temps = np.clip(np.rint(board_t), -128, 127).astype(np.int64)
     return status_frames(
         sc.base_id, when, counters, states, sc.sample_rate_hz, temps, b.supply_v, errors
     )
