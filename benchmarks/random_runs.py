@@ -54,6 +54,10 @@ STREAMS = {
     "odometer": 6,
     "faults": 7,
     "wheel": 8,
+    # issue 25's effects, numbered apart from the other helpers' streams
+    "body_pitch": 21,
+    "standstill": 22,
+    "sensor_drift": 23,
 }
 
 ODOMETER_CLASSES = ("usable", "poor", "absent")
@@ -386,6 +390,55 @@ def _odometer(seed: int, duration: float) -> tuple[dict[str, Any], str, list[dic
     return odo, quality, faults
 
 
+# ------------------------------------------------------------------------------ issue 25
+def _body_pitch(seed: int) -> dict[str, Any]:
+    """The car body on its secondary suspension: compliance 0.03..0.2 deg per m/s^2 (issue
+    25's 0.05..0.2, down to a stiff car), pitch mode 0.9..2 Hz, damping ratio 0.15..0.35,
+    the load's pitch step per station 0.005..0.05 deg (0.2..2.5 t of passengers 3 m off
+    centre). No static pitch: the sheet is taken on the car as it starts, so its pitch then
+    is in the sheet's angles; what the load does after it is not."""
+    rng = _rng(seed, "body_pitch")
+    return {
+        "compliance_deg_per_mps2": _r(rng.uniform(0.03, 0.2), 4),
+        "frequency_hz": _r(rng.uniform(0.9, 2.0), 3),
+        "damping_ratio": _r(rng.uniform(0.15, 0.35), 3),
+        "load_step_deg": _r(rng.uniform(0.005, 0.05), 4),
+    }
+
+
+def _standstill(seed: int, rate: int) -> dict[str, Any]:
+    """A standing car: HVAC hum log-uniform 0.003..0.03 m/s^2 (0.3..3 mg) at 8..25 Hz; the
+    doors' ring 0.03..0.3 m/s^2 at 6..12 Hz decaying in 0.15..0.6 s; passengers 0..2 per
+    second while the doors are open, each 0.001..0.004 deg of pitch (50..150 kg). Every
+    frequency below 0.45 x the sample rate."""
+    rng = _rng(seed, "standstill")
+    nyq = 0.45 * rate
+    return {
+        "hvac_mps2": _r(_loguniform(rng, 0.003, 0.03), 5),
+        "hvac_hz": _r(min(rng.uniform(8.0, 25.0), nyq), 2),
+        "door_mps2": _r(rng.uniform(0.03, 0.3), 4),
+        "door_hz": _r(min(rng.uniform(6.0, 12.0), nyq), 2),
+        "door_decay_s": _r(rng.uniform(0.15, 0.6), 3),
+        "boarding_rate_hz": _r(rng.uniform(0.0, 2.0), 3),
+        "boarding_step_deg": _r(rng.uniform(0.001, 0.004), 5),
+    }
+
+
+def _sensor_drift(seed: int) -> tuple[list[dict[str, float]], dict[str, float]]:
+    """Per channel a bias random walk log-uniform 1e-6..3e-5 m/s^2/sqrt(s) (0.1..3 ug/sqrt(s):
+    0.006..0.18 mg after an hour) and a thermal lag behind the board of 0..600 s; the board
+    cools 0..5 K at stations."""
+    rng = _rng(seed, "sensor_drift")
+    channels = [
+        {
+            "bias_walk_mps2_per_sqrt_s": _r(_loguniform(rng, 1e-6, 3e-5), 8),
+            "thermal_lag_s": _r(rng.uniform(0.0, 600.0), 1),
+        }
+        for _ in NOMINAL_ANGLES_DEG
+    ]
+    return channels, {"station_cooling_k": _r(rng.uniform(0.0, 5.0), 2)}
+
+
 # ------------------------------------------------------------------------------ faults
 FAULT_KINDS = ("stuck", "status", "spike", "drift", "crc", "dropout", "saturate")
 
@@ -450,7 +503,10 @@ def draw(seed: int) -> Drawn:
     board, temp_kind = _board(seed)
     odo, quality, odo_faults = _odometer(seed, duration)
     faults = sorted(_faults(seed, duration) + odo_faults, key=lambda f: f["start_s"])
-    channels = [c | m for c, m in zip(board["channels"], ride["mounts"], strict=True)]
+    drift_channels, drift_board = _sensor_drift(seed)
+    channels = [
+        c | m | d for c, m, d in zip(board["channels"], ride["mounts"], drift_channels, strict=True)
+    ]
     grades = [s["gradient_permil"] for s in line["track"]]
     channel_faults = [f for f in faults if f["channel"] != "speed"]
     summary = (
@@ -476,9 +532,11 @@ def draw(seed: int) -> Drawn:
         "track": line["track"],
         "train": train["train"],
         "channels": channels,
-        "board": board["board"],
+        "board": board["board"] | drift_board,
         "odometer": odo,
         "vibration": ride["vibration"],
+        "body_pitch": _body_pitch(seed),
+        "standstill": _standstill(seed, rate),
     }
     if faults:
         data["faults"] = faults

@@ -56,6 +56,16 @@ def test_drawn_values_stay_inside_their_documented_ranges() -> None:
         for c, nominal in zip(x["channels"], (30.0, 0.0, -30.0), strict=True):
             assert abs(c["angle_deg"] - nominal) <= 0.5
             assert abs(c["bias_mps2"]) <= 0.03 and abs(c["scale_error"]) <= 1e-3
+            assert 1e-6 <= c["bias_walk_mps2_per_sqrt_s"] <= 3e-5
+            assert 0.0 <= c["thermal_lag_s"] <= 600.0
+        assert 0.0 <= x["board"]["station_cooling_k"] <= 5.0
+        bp, st = x["body_pitch"], x["standstill"]
+        assert 0.03 <= bp["compliance_deg_per_mps2"] <= 0.2 and "static_deg" not in bp
+        assert 0.9 <= bp["frequency_hz"] <= 2.0 and 0.15 <= bp["damping_ratio"] <= 0.35
+        assert 0.005 <= bp["load_step_deg"] <= 0.05
+        assert 0.003 <= st["hvac_mps2"] <= 0.03 and 0.03 <= st["door_mps2"] <= 0.3
+        assert max(st["hvac_hz"], st["door_hz"]) <= 0.45 * x["sample_rate_hz"]
+        assert 0.0 <= st["boarding_rate_hz"] <= 2.0
         assert x["speed_ref"] == (d.odometer != "absent")
         assert 5.0 <= d.facts["top_speed_mps"] <= 45.0
         assert 0.0 <= x["odometer"]["lag_s"] <= 0.1
