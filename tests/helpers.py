@@ -8,9 +8,9 @@ from collections.abc import Callable
 import numpy as np
 
 from devices.base import LiveSource, SourceBatch
-from protocol.can_codec import encode_adc, encode_status
+from protocol.can_codec import decode, encode_adc, encode_status
 from protocol.frames import frames_from_raw
-from protocol.layout import DEFAULT_BASE
+from protocol.layout import DEFAULT_BASE, NOMINAL_SCALE
 from protocol.records import AdcSample, BoardStatus, RawFrame
 
 
@@ -82,3 +82,14 @@ def assemble(
 def kinds(events: np.ndarray, kind: int) -> np.ndarray:
     """The events of one kind."""
     return events[events["kind"] == kind]
+
+
+def adc_values(frames: np.ndarray) -> np.ndarray:
+    """(n, 3) accelerations (m/s^2) of an emulated run's ADC frames at the nominal scale
+    (fault-free runs: the frames come in sample order, ch1, ch2, ch3)."""
+    rows = []
+    for f in frames:
+        rec = decode(int(f["id"]), bytes(f["data"]))
+        if isinstance(rec, AdcSample):
+            rows.append(rec.code * NOMINAL_SCALE)
+    return np.array(rows).reshape(-1, 3)

@@ -15,9 +15,8 @@ import pytest
 from devices.emulator import parse_scenario, simulate
 from devices.emulator.body_pitch import BodyPitch
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
-from protocol.records import AdcSample
+from tests.helpers import adc_values
 
 C, F, Z = 0.1, 1.2, 0.3  # deg per m/s^2, Hz, damping ratio of these tests
 WN = 2 * math.pi * F
@@ -83,12 +82,7 @@ def test_a_jerk_limited_ramp_lags_by_two_zeta_over_wn():
 
 
 def adc(sim) -> np.ndarray:
-    rows = []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
-    return np.array(rows).reshape(-1, 3)
+    return adc_values(sim.frames)
 
 
 def test_the_board_on_the_body_reads_the_pitch_as_gradient():

@@ -24,9 +24,8 @@ import pytest
 
 from devices.emulator import parse_scenario, simulate
 from devices.emulator.stream import RunCounts, simulate_chunks
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
-from protocol.records import AdcSample
+from tests.helpers import adc_values
 
 RATE = 50
 S30 = math.sin(math.radians(30.0))
@@ -58,12 +57,7 @@ def adc(text: str) -> np.ndarray:
     """(n, 3) accelerations from the ADC frames at the nominal scale (fault-free: sample
     order, ch1, ch2, ch3)."""
     sim = simulate(parse_scenario(dedent(text), "antialias.toml"))
-    rows = []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
-    return np.array(rows).reshape(-1, 3)
+    return adc_values(sim.frames)
 
 
 def tone(y: np.ndarray, f: float) -> tuple[float, float]:

@@ -19,7 +19,8 @@ from devices.emulator import calibration_toml, parse_scenario, simulate
 from devices.errors import ConfigError
 from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
-from protocol.records import AdcSample, BoardStatus, SpeedRef
+from protocol.records import BoardStatus, SpeedRef
+from tests.helpers import adc_values
 
 S30 = math.sin(math.radians(30.0))
 C30 = math.cos(math.radians(30.0))
@@ -32,12 +33,7 @@ def sim_of(text: str):
 def adc(sim) -> np.ndarray:
     """(n, 3) accelerations from the ADC frames at the nominal scale (fault-free runs: the
     frames come in sample order, ch1, ch2, ch3)."""
-    rows = []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
-    return np.array(rows).reshape(-1, 3)
+    return adc_values(sim.frames)
 
 
 def speeds(sim) -> tuple[np.ndarray, np.ndarray]:

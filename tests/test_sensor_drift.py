@@ -19,7 +19,8 @@ from devices.emulator.stream import RunCounts, simulate_chunks
 from devices.errors import ConfigError
 from protocol.can_codec import decode
 from protocol.layout import NOMINAL_SCALE
-from protocol.records import AdcSample, BoardStatus
+from protocol.records import BoardStatus
+from tests.helpers import adc_values
 
 # level, no hum, no pitch, no body modes: ch2 (0 deg) reads its own bias drift alone
 QUIET = """
@@ -37,12 +38,7 @@ enabled = false
 
 
 def adc(sim) -> np.ndarray:
-    rows = []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
-    return np.array(rows).reshape(-1, 3)
+    return adc_values(sim.frames)
 
 
 def status_temperatures(sim) -> tuple[np.ndarray, np.ndarray]:

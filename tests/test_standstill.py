@@ -14,9 +14,8 @@ from devices.emulator import parse_scenario, simulate
 from devices.emulator.body_pitch import BodyPitch, scenario_stations
 from devices.emulator.standstill import plan
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
-from protocol.records import AdcSample
+from tests.helpers import adc_values
 
 # 60 s standing: one station 0..60 s, doors open at 12 s and close at 48 s
 STILL = """
@@ -45,12 +44,7 @@ def scenario(seed=1, hvac=0.0, door=0.0, rate=0.0):
 
 
 def adc(sim) -> np.ndarray:
-    rows = []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
-    return np.array(rows).reshape(-1, 3)
+    return adc_values(sim.frames)
 
 
 def tone_amplitude(y: np.ndarray, t: np.ndarray, hz: float) -> float:
