@@ -56,10 +56,18 @@ BLOCK_S = 0.25
 """Block length for the means the fit works on."""
 MIN_FILL = 0.8
 """A block needs this fraction of its samples with all three channels usable."""
-STEADY_WINDOW_S = (1.0, 1.0)
-STEADY_MPS2 = 0.02
-"""speed: a block is used where the odometer's acceleration changed by less than this from
-1 s before to 1 s after (its latency, up to 0.1 s, then costs < 0.002 m/s^2)."""
+STEADY_S = 1.5
+STEADY_BIN_S = 0.05
+STEADY_JERK_MPS3 = 0.05
+STEADY_RESIDUAL_MPS = 0.03
+"""speed: a block is used where a parabola through the odometer's speeds over STEADY_S on
+each side has a jerk below this and leaves this rms (:func:`steady`)."""
+MIN_ACCEL_S = 5.0
+MIN_ACCEL_MPS2 = 0.1
+"""speed: the steady blocks must hold this much time (taper-weighted) of acceleration or
+braking of at least MIN_ACCEL_MPS2, or the common pitch is not determined: a few blocks
+of it are fitted as exactly as they are noisy, so their residuals cannot say how wrong
+the angles are (a run of 0.1 s of steady braking came out 1.6 deg off at a stated 0.26)."""
 ACCEL_WINDOW_S = 0.5
 """The odometer's acceleration: slope of a straight line through its speeds within this of
 each frame, both sides (a centred derivative: no lag, noise averaged over 1 s)."""
@@ -80,6 +88,21 @@ SCATTER_S = 4.0
 """The blocks are weighted by 1 / their residuals' power over this on each side."""
 HAC_S = 16.0
 """Correlation time the uncertainty allows for (Bartlett-weighted lags up to this)."""
+WHEEL_ERROR_SIGMA = 0.03 / math.sqrt(3.0)
+"""The odometer's wheel-diameter error e (SPEED_REF = true speed * (1 + e)) before the fit:
+uniform within +/-3 % (a worn or wrongly configured wheel), 1 sigma. It scales the
+reference acceleration, so it turns the board like a common pitch of about e * sin(alpha)
+wherever the train accelerates on a grade. Not fitted (the random runs hardly determine it:
+fitted, it came out near 0 whatever it was): in motion the uncertainties count what it
+would move the angles by."""
+COMPLIANCE_DEG_PER_MPS2 = (0.1, 0.1)
+"""The car body's pitch on its secondary suspension per m/s^2 of the train's acceleration
+(nose up accelerating), before the fit: h / (w_b^2 b^2) for a body's centre of gravity h
+above the traction rods, bounce frequency w_b and bogie centres at +/- b: 0.05 deg for a
+metro car (h 1.2 m, 1 Hz, 6 m; docs/EMULATOR.md), up to about 0.2 for a soft or short one
+(issue 25). Mean and 1 sigma; in motion it is fitted with this as its prior."""
+COMPLIANCE_RAD = math.radians(COMPLIANCE_DEG_PER_MPS2[0])
+COMPLIANCE_SIGMA_RAD = math.radians(COMPLIANCE_DEG_PER_MPS2[1])
 OFFSET_SIGMA_MAX = 2e-4
 """An offset is fitted only if the data pins it to this (m/s^2, 1 sigma, about 20 ug)."""
 ANGLE_SIGMA_MAX_DEG = 0.5
@@ -123,6 +146,8 @@ class Fit:
     blocks: int
     start: Config
     config: Config  # the calibrated config
+    compliance_deg_per_mps2: float = 0.0  # the body's fitted pitch per m/s^2 (speed only)
+    compliance_sigma: float = math.nan  # its 1 sigma (deg per m/s^2); NaN where not fitted
 
     @property
     def angles_rad(self) -> np.ndarray:
@@ -148,6 +173,12 @@ class Fit:
             else:
                 text += f", offset not observable (kept at {old.offset:g} LSB)"
             lines.append(text)
+        if math.isfinite(self.compliance_sigma):
+            lines.append(
+                f"  car body: pitch {self.compliance_deg_per_mps2:+.3f} "
+                f"+/- {self.compliance_sigma:.3f} deg per m/s^2 of acceleration (nose up); "
+                f"the odometer's wheel counted as +/-{100 * WHEEL_ERROR_SIGMA:.1f} % of scale"
+            )
         kept = [i for i in range(3) if not math.isfinite(self.offset_sigma_mps2[i])]
         if kept:
             shift = [
@@ -321,36 +352,52 @@ def block_means(rec: Recording, keep: np.ndarray) -> Blocks:
 
 
 def steady(rec: Recording) -> np.ndarray:
-    """Samples in blocks where the odometer's acceleration is known and steady: it varies
-    by less than STEADY_MPS2 from STEADY_WINDOW_S[0] before the block to STEADY_WINDOW_S[1]
-    after it (not in a ramp of traction or braking, a wheel-slide or slip cycle, a gap)."""
-    if len(rec.time_s) == 0:
+    """Samples in blocks where the train's acceleration is known and steady: a parabola
+    through the odometer's speeds over STEADY_S on each side of the block (on a grid of
+    STEADY_BIN_S means, every bin known) has a jerk below STEADY_JERK_MPS3 (then its
+    latency, up to 0.1 s, costs < 0.005 m/s^2 of acceleration) and leaves speeds within
+    STEADY_RESIDUAL_MPS rms (not a ramp of traction or braking, a wheel-slide or slip
+    cycle, a SPEED_REF gap). A parabola over 3 s, not the spread of the per-frame slopes,
+    is what tells a ramp from the odometer's own noise: a 50 mm/s odometer's 1 s slopes
+    scatter by 0.02 m/s^2 while its 3 s jerk is known to 0.006 m/s^3."""
+    n = len(rec.time_s)
+    if n == 0:
         return np.zeros(0, dtype=bool)
-    fin = np.isfinite(rec.a_ref)
-    block = np.floor(rec.time_s / BLOCK_S).astype(np.int64)
+    speed = rec.speed
+    t = rec.time_s
+    bins = np.floor((t - t[0]) / STEADY_BIN_S).astype(np.int64)
+    nbin = int(bins[-1]) + 1
+    fin = np.isfinite(speed)
+    count = np.bincount(bins, minlength=nbin)
+    known = np.bincount(bins[fin], minlength=nbin)
+    total = np.bincount(bins[fin], speed[fin], minlength=nbin)
+    full = (count > 0) & (known == count)
+    v = np.where(full, total / np.maximum(known, 1), 0.0)
+    half = round(STEADY_S / STEADY_BIN_S)
+    u = np.arange(-half, half + 1) * STEADY_BIN_S
+    basis = np.vstack([np.ones_like(u), u, u * u])  # (3, L)
+    filters = np.linalg.solve(basis @ basis.T, basis)  # LS coefficients as fixed filters
+    coef = np.array([np.convolve(v, f[::-1], "same") for f in filters])  # (3, nbin)
+    power = np.convolve(v * v, np.ones(len(u)), "same")
+    explained = sum(coef[i] * np.convolve(v, basis[i][::-1], "same") for i in range(3))
+    resid_rms = np.sqrt(np.maximum(power - explained, 0.0) / len(u))
+    missing = np.convolve((~full).astype(np.float64), np.ones(len(u)), "same") > 0.5
+    edge = np.zeros(nbin, dtype=bool)
+    edge[:half] = True  # a window cut by the start or end of the recording is not known
+    edge[nbin - half :] = True
+    ok_bin = (
+        ~missing
+        & ~edge
+        & (np.abs(2.0 * coef[2]) < STEADY_JERK_MPS3)
+        & (resid_rms < STEADY_RESIDUAL_MPS)
+    )
+    # a block is steady when every bin it touches is
+    block = np.floor(t / BLOCK_S).astype(np.int64)
     idx = block - block.min()
     nb = int(idx.max()) + 1
-    hi = np.full(nb, -np.inf)
-    lo = np.full(nb, np.inf)
-    np.maximum.at(hi, idx[fin], rec.a_ref[fin])
-    np.minimum.at(lo, idx[fin], rec.a_ref[fin])
-    bad = np.bincount(idx[~fin], minlength=nb) > 0
-    bad |= np.bincount(idx, minlength=nb) == 0
-    before = round(STEADY_WINDOW_S[0] / BLOCK_S)
-    after = round(STEADY_WINDOW_S[1] / BLOCK_S)
-    w_hi, w_lo, w_bad = hi.copy(), lo.copy(), bad.copy()
-    for shift in range(-after, before + 1):  # block k looks at blocks k - before .. k + after
-        if shift == 0:
-            continue
-        src = slice(max(-shift, 0), nb - max(shift, 0))
-        dst = slice(max(shift, 0), nb - max(-shift, 0))
-        w_hi[dst] = np.maximum(w_hi[dst], hi[src])
-        w_lo[dst] = np.minimum(w_lo[dst], lo[src])
-        w_bad[dst] |= bad[src]
-    w_bad[:before] = True  # a window cut by the start of the recording is not known steady
-    w_bad[nb - after :] = True
-    ok = ~w_bad & (w_hi - w_lo < STEADY_MPS2)
-    return ok[idx]
+    bad = np.bincount(idx, (~ok_bin[bins]).astype(np.float64), minlength=nb) > 0
+    bad |= np.bincount(idx[~np.isfinite(rec.a_ref)], minlength=nb) > 0
+    return ~bad[idx]
 
 
 # -------------------------------------------------------------------------------- fit
@@ -358,6 +405,21 @@ def steady(rec: Recording) -> np.ndarray:
 
 class Undetermined(Exception):
     """The normal equations are singular: the data does not determine the parameters."""
+
+
+@dataclass(frozen=True, slots=True)
+class Solution:
+    """What :func:`_solve` found: the parameters, their covariance (theta, fitted offsets,
+    then C where fitted), the blocks' alphas and unweighted residuals (B, 3)."""
+
+    theta: np.ndarray
+    b: np.ndarray
+    cov: np.ndarray
+    rms: float
+    alpha: np.ndarray
+    resid: np.ndarray
+    compliance: float = 0.0  # rad per m/s^2
+    c_col: int | None = None
 
 
 def _solve(
@@ -372,7 +434,9 @@ def _solve(
     weights: np.ndarray | None = None,
     ids: np.ndarray | None = None,
     normal_sigma: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
+    scale_sigma: float | None = None,
+    compliance: tuple[float, float] | None = None,
+) -> Solution:
     """Gauss-Newton for theta (3) and the offsets marked in fit_offset; alpha per block is a
     nuisance (eliminated by projection) when free_alpha; ``normal_accel`` (c per block) is
     known. ``weights`` weigh the blocks; with ``ids`` (block indices in time) the
@@ -380,39 +444,88 @@ def _solve(
     them as independent, and ``normal_sigma`` (1 sigma of c per block, correlated like
     the residuals) adds what an error of c would move the parameters by.
 
-    Returns (theta, offsets (3,), covariance of the parameters, rms residual, alpha,
-    unweighted residuals (B, 3))."""
+    Two nuisances of a moving car. With ``compliance`` = (mean, sigma) the car body's
+    pitch on its suspension, beta = C * a (rad, C in rad per m/s^2), is fitted: it turns
+    every sensor's axis to theta_i + beta, which a common pitch of the board cannot tell
+    from the board unless the acceleration takes more than one value. Its prior is a
+    pseudo-measurement in the normal equations (the fit is the posterior's mode) and in
+    the covariance's sandwich, so that where the recording does not determine C it keeps
+    its prior's sigma and passes it on to the angles through their correlation with it.
+    With ``scale_sigma`` the reference's scale k (true a and c = k * given, k = 1 +/-
+    scale_sigma) is not fitted but considered: the covariance adds what it would move the
+    parameters by.
+    """
     nb = len(m)
     off_idx = np.flatnonzero(fit_offset)
     n_par = 3 + len(off_idx)
+    c_col = None
+    priors: list[tuple[int, float, float]] = []  # (column, mean, sigma)
+    if compliance is not None:
+        c_col, n_par = n_par, n_par + 1
+        priors.append((c_col, compliance[0], compliance[1]))
     c = np.zeros(nb) if normal_accel is None else normal_accel
     sw = np.ones(nb) if weights is None else np.sqrt(weights)
-    theta = theta.copy()
-    b = np.zeros(3)
+    x = np.zeros(n_par)
+    x[:3] = theta
+    for col, mean, _ in priors:
+        x[col] = mean
     alpha = alpha.copy()
     jac = np.zeros((nb, 3, n_par))
+    dof = 3 * nb - n_par - (nb if free_alpha else 0)
+    if dof <= 0:
+        raise BenchError(f"calibration: {nb} blocks are too few to fit {n_par} parameters")
 
-    def residual(alpha: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        phi = alpha[:, None] + theta[None, :]
-        pred = a[:, None] * np.cos(theta) + g * np.sin(phi) + c[:, None] * np.sin(theta)
-        return (m - pred - b) * sw[:, None]
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        b = np.zeros(3)
+        b[off_idx] = x[3 : 3 + len(off_idx)]
+        return x[:3], b, float(x[c_col]) if c_col is not None else 0.0
 
+    def model(alpha: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(weighted residuals, d(pred)/d(axis angle), d(pred)/d(alpha)), each (B, 3)."""
+        th, b, cc = unpack(x)
+        psi = th[None, :] + (cc * a)[:, None]  # each axis on the pitched body
+        phi = alpha[:, None] + psi
+        aa, ca = a[:, None], c[:, None]
+        pred = aa * np.cos(psi) + ca * np.sin(psi) + g * np.sin(phi) + b
+        d_psi = -aa * np.sin(psi) + ca * np.cos(psi) + g * np.cos(phi)
+        return (m - pred) * sw[:, None], d_psi, g * np.cos(phi)
+
+    def project(v: np.ndarray, gn: np.ndarray) -> np.ndarray:
+        """Remove each block's component along its gravity direction (alpha's column)."""
+        if v.ndim == 3:
+            return v - gn[:, :, None] * np.einsum("ji,jip->jp", gn, v)[:, None, :]
+        return v - gn * np.einsum("ji,ji->j", gn, v)[:, None]
+
+    def solve_alpha(alpha: np.ndarray, x: np.ndarray, rounds: int) -> np.ndarray:
+        for _ in range(rounds):
+            r, _, d_alpha = model(alpha, x)
+            grav = d_alpha * sw[:, None]
+            alpha = alpha + np.einsum("ji,ji->j", grav, r) / np.einsum("ji,ji->j", grav, grav)
+        return alpha
+
+    hold = np.zeros((n_par, n_par))  # the priors' information, in units of the residuals'
+    step = np.zeros(n_par)
     for _ in range(MAX_ITER):
-        phi = alpha[:, None] + theta[None, :]
-        r = residual(alpha, theta)
+        r, d_psi, d_alpha = model(alpha, x)
         for i in range(3):
-            jac[:, i, i] = -a * np.sin(theta[i]) + g * np.cos(phi[:, i]) + c * np.cos(theta[i])
-            jac[:, i, i] *= sw
+            jac[:, i, i] = d_psi[:, i] * sw
         for col, i in enumerate(off_idx.tolist()):
             jac[:, i, 3 + col] = sw
+        if c_col is not None:
+            jac[:, :, c_col] = d_psi * (a * sw)[:, None]
         jp, rp = jac, r
+        grav = d_alpha * sw[:, None]
+        gn = grav / np.linalg.norm(grav, axis=1, keepdims=True)
         if free_alpha:
-            grav = g * np.cos(phi) * sw[:, None]
-            gn = grav / np.linalg.norm(grav, axis=1, keepdims=True)
-            jp = jac - gn[:, :, None] * np.einsum("ji,jip->jp", gn, jac)[:, None, :]
-            rp = r - gn * np.einsum("ji,ji->j", gn, r)[:, None]
+            jp, rp = project(jac, gn), project(r, gn)
         normal = np.einsum("jip,jiq->pq", jp, jp)
         rhs = np.einsum("jip,ji->p", jp, rp)
+        if priors:
+            sigma2 = float(np.sum(rp * rp)) / dof  # the residuals' variance, for the holds
+            for col, mean, sigma in priors:
+                hold[col, col] = sigma2 / sigma**2
+                rhs[col] -= hold[col, col] * (x[col] - mean)
+            normal = normal + hold
         try:
             step = np.linalg.solve(normal, rhs)
         except np.linalg.LinAlgError:
@@ -420,17 +533,13 @@ def _solve(
         if free_alpha:
             resid = r - np.einsum("jip,p->ji", jac, step)
             alpha = alpha + np.einsum("ji,ji->j", grav, resid) / np.einsum("ji,ji->j", grav, grav)
-        theta = theta + step[:3]
-        b[off_idx] += step[3:]
+        x = x + step
         if np.max(np.abs(step)) < 1e-13:
             break
     else:
         if np.max(np.abs(step)) > 1e-9:  # still moving: no solution the data settles on
             raise Undetermined
-    r = residual(alpha, theta)
-    dof = 3 * nb - n_par - (nb if free_alpha else 0)
-    if dof <= 0:
-        raise BenchError(f"calibration: {nb} blocks are too few to fit {n_par} parameters")
+    r, _, _ = model(alpha, x)
     rss = float(np.sum(r * r))
     try:
         inv = np.linalg.inv(normal)
@@ -438,20 +547,34 @@ def _solve(
         raise Undetermined from None
     cov = inv * (rss / dof)
     if ids is not None:
-        rp = r - gn * np.einsum("ji,ji->j", gn, r)[:, None] if free_alpha else r
+        rp = project(r, gn) if free_alpha else r
         scores = np.einsum("jip,ji->jp", jp, rp)
         lags = round(HAC_S / BLOCK_S)
-        hac = inv @ newey_west(scores, ids, lags) @ inv
-        hac *= 3 * nb / dof
+        meat = newey_west(scores, ids, lags) * (3 * nb / dof)
+        meat += hold * (rss / dof)  # the priors' share, as the data would have said it
+        hac = inv @ meat @ inv
         # few blocks make the lagged sums unreliable: then never claim less than independent
         # blocks would give (with many, a tone's cancelling lags may rightly give less)
         cov = hac if nb >= 4 * lags else np.maximum(cov, hac)
-        if normal_sigma is not None:  # d(residual)/dc = -sin(theta) (weighted, projected)
-            q = np.einsum("jip,i->jp", jp, np.sin(theta)) * (sw * normal_sigma)[:, None]
+        if normal_sigma is not None:  # d(residual)/dc = -sin(psi) (weighted, projected)
+            th, _, cc = unpack(x)
+            dc = np.sin(th[None, :] + (cc * a)[:, None]) * (sw * normal_sigma)[:, None]
+            q = np.einsum("jip,ji->jp", jp, dc)
             cov = cov + inv @ newey_west(q, ids, lags) @ inv
+    if scale_sigma is not None:  # what a scale k = 1 +/- scale_sigma would move them by
+        th, _, cc = unpack(x)
+        psi = th[None, :] + (cc * a)[:, None]
+        _, d_psi, _ = model(alpha, x)
+        jk = a[:, None] * np.cos(psi) + c[:, None] * np.sin(psi) + d_psi * (cc * a)[:, None]
+        jk = jk * sw[:, None]
+        if free_alpha:
+            jk = project(jk, gn)
+        shift = inv @ np.einsum("jip,ji->p", jp, jk)
+        cov = cov + scale_sigma**2 * np.outer(shift, shift)
+    th, b, cc = unpack(x)
     plain = r / sw[:, None]
     rms = math.sqrt(float(np.sum(plain**2)) / (3 * nb))
-    return theta, b, cov, rms, alpha, plain
+    return Solution(th.copy(), b, cov, rms, alpha, plain, cc, c_col)
 
 
 def newey_west(scores: np.ndarray, ids: np.ndarray, lags: int) -> np.ndarray:
@@ -577,6 +700,15 @@ def calibrate(
     ids, m, a = blocks.ids, blocks.acc, blocks.a
     if len(ids) < 2:
         raise BenchError(f"calibration: too little usable data against the {name}")
+    moving = reference == "speed"
+    hint = "; it needs more acceleration and braking" if moving else ""
+    if moving:
+        accel_s = float(np.sum(taper(ids) * (np.abs(a) >= MIN_ACCEL_MPS2))) * BLOCK_S
+        if accel_s < MIN_ACCEL_S:
+            raise BenchError(
+                f"calibration: the recording does not determine the angles ({accel_s:.1f} s "
+                f"of steady acceleration or braking, {MIN_ACCEL_S:g} s needed){hint}"
+            )
     g = config.g
     theta0 = np.asarray(config.angles_rad, dtype=np.float64)
     if reference == "speed":  # start each block's gradient where the starting angles put it
@@ -592,30 +724,41 @@ def calibrate(
         row = np.clip(np.searchsorted(table[:, 0], centre, side="right") - 1, 0, None)
         alpha = np.arctan(table[row, 2] / 1000.0)
     fit_offset = np.full(3, reference != "level")
-    moving = reference == "speed"
-    hint = "; it needs more acceleration and braking" if moving else ""
     weights = taper(ids) if moving else None
 
-    def fit(fit_offset: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-        """The fit; in motion iterated with c = v^2 d(alpha)/dx from its own alphas."""
+    def fit(fit_offset: np.ndarray) -> Solution:
+        """The fit; in motion iterated with c = v^2 d(alpha)/dx from its own alphas, and
+        with the odometer's scale and the body's compliance fitted."""
         c = np.zeros(len(ids))
         w = weights
         for it in range(CURVE_ITER if moving else 1):
-            theta, b, cov, rms, fitted, resid = _solve(
-                m, a, alpha, moving, g, theta0, fit_offset, c, w, ids, curve_sigma(c, ids)
+            sol = _solve(
+                m,
+                a,
+                alpha,
+                moving,
+                g,
+                theta0,
+                fit_offset,
+                c,
+                w,
+                ids,
+                curve_sigma(c, ids),
+                WHEEL_ERROR_SIGMA if moving else None,
+                (COMPLIANCE_RAD, COMPLIANCE_SIGMA_RAD) if moving else None,
             )
             if not moving:
                 break
-            c_new = blocks.v2 * curvature(fitted, blocks.x, np.sqrt(blocks.v2))
-            w_new = weights * scatter_weights(resid, ids)
+            c_new = blocks.v2 * curvature(sol.alpha, blocks.x, np.sqrt(blocks.v2))
+            w_new = weights * scatter_weights(sol.resid, ids)
             if (np.max(np.abs(c_new - c)) < 1e-5 and it > 0) or it == CURVE_ITER - 1:
                 break
             c, w = c_new, w_new
-        return theta, b, cov, rms
+        return sol
 
     while True:
         try:
-            theta, b, cov, rms = fit(fit_offset)
+            sol = fit(fit_offset)
         except Undetermined:
             if fit_offset.any():  # offsets first: they are the usual reason
                 fit_offset[:] = False
@@ -623,13 +766,14 @@ def calibrate(
             raise BenchError(
                 f"calibration: the recording does not determine the angles{hint}"
             ) from None
-        sig = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        sig = np.sqrt(np.clip(np.diag(sol.cov), 0.0, None))
         off_sig = np.full(3, np.nan)
-        off_sig[fit_offset] = sig[3:]
+        off_sig[fit_offset] = sig[3 : 3 + int(fit_offset.sum())]
         weak = fit_offset & ~(off_sig <= OFFSET_SIGMA_MAX)
         if not weak.any():
             break
         fit_offset &= ~weak  # not determined by the data: keep the config's, fit again
+    theta, b, rms = sol.theta, sol.b, sol.rms
     angle_sig = np.degrees(sig[:3])
     if not (angle_sig <= ANGLE_SIGMA_MAX_DEG).all():
         worst = float(np.max(angle_sig))
@@ -653,4 +797,8 @@ def calibrate(
         blocks=len(ids),
         start=config,
         config=new,
+        compliance_deg_per_mps2=math.degrees(sol.compliance),
+        compliance_sigma=(
+            math.degrees(float(sig[sol.c_col])) if sol.c_col is not None else math.nan
+        ),
     )

@@ -72,6 +72,7 @@ def test_a_vertical_curve_with_its_v2r_does_not_pull_the_angles() -> None:
             ],
             "channels": [{"angle_deg": a, "noise_mps2": 0.003} for a in AS_BUILT],
             "body_pitch": {"enabled": False},  # this case is v^2/R alone
+            "body_modes": {"enabled": False},
         }
     )
     assert_within_and_honest(fit)
