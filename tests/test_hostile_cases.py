@@ -78,6 +78,9 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_viewer::test_the_front_drops_and_counts_for_a_viewer_that_never_reads
     -> test_hostile_viewer::test_a_run_says_what_a_stalled_viewer_cost
     -> test_hostile_viewer::test_a_stalled_client_of_the_sdks_own_port_does_not_hold_the_close
+17b a peer that opens connections and says nothing, or very many of them
+    -> test_hostile_viewer::test_a_connection_that_never_sends_its_request_is_closed
+    -> test_hostile_viewer::test_connections_beyond_the_limit_are_refused_and_counted
 18  `bench fleet --workers 100000` grows memory without answering
     -> test_hostile_records::test_bad_fleet_options_are_one_line
 19  random bytes named `.log`, a cut `.mcap` with 0 frames: "replayed", exit 0

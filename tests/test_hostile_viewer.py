@@ -157,6 +157,62 @@ def test_the_viewer_warning_line():
         "3 messages dropped for viewers that fell behind; 2 viewers disconnected (did not "
         "take what was sent within 5 s) (the run and its log are not affected)"
     )
+    assert viewer_warning({"clients_refused": 1}) == (
+        "1 connection refused (16 viewers were being served) (the run and its log are not affected)"
+    )
+
+
+def test_a_connection_that_never_sends_its_request_is_closed(monkeypatch):
+    """A peer that connects and says nothing was kept forever, one task per connection."""
+    import socket
+
+    from bench.mcaplog import foxglove_front as front
+    from bench.mcaplog.foxglove_ws import WsChannels
+
+    monkeypatch.setattr(front, "HANDSHAKE_TIMEOUT_S", 1.0)
+    ws = WsChannels(port=0)
+    try:
+        with socket.create_connection(("127.0.0.1", ws.port)) as quiet:
+            quiet.settimeout(GUARD_S)  # a hang guard: the front closes it after 1 s
+            assert quiet.recv(1024) == b""
+    finally:
+        ws.abort()
+
+
+def test_connections_beyond_the_limit_are_refused_and_counted(monkeypatch):
+    """Each stalled viewer may hold an outbox for a few seconds: their number is bounded."""
+    import socket
+
+    from bench.mcaplog import foxglove_front as front
+    from bench.mcaplog.foxglove_ws import WsChannels
+
+    monkeypatch.setattr(front, "MAX_CLIENTS", 2)
+    ws = WsChannels(port=0)
+    held = []
+    try:
+        held = [StalledClient(ws.port) for _ in range(2)]  # two viewers being served
+        assert all(c.status == "HTTP/1.1 101 Switching Protocols" for c in held)
+        with socket.create_connection(("127.0.0.1", ws.port)) as third:
+            third.settimeout(GUARD_S)
+            answer = b""
+            while data := third.recv(1024):
+                answer += data
+        assert answer.startswith(b"HTTP/1.1 503 Service Unavailable\r\n"), answer
+        assert ws.front.counts.clients_refused == 1
+        held.pop().close()  # one goes: a new viewer is served again
+        deadline = time.monotonic() + GUARD_S
+        while True:  # until the front has seen the one that went (a hang guard)
+            again = StalledClient(ws.port) if len(ws.front._tasks) < 2 else None
+            if again is not None:
+                held.append(again)
+                break
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        assert again.status == "HTTP/1.1 101 Switching Protocols"
+    finally:
+        ws.abort()
+        for c in held:
+            c.close()
 
 
 def _ws_frame(opcode: int, payload: bytes, fin: bool = True) -> bytes:

@@ -51,6 +51,16 @@ SEND_BUFFER_BYTES = 256 * 1024
 """The kernel's send buffer for a client's socket: left to itself it grows to megabytes
 that no outbox counts, and a stalled viewer would be noticed only after they filled."""
 CLOSE_TIMEOUT_S = 5.0
+HANDSHAKE_TIMEOUT_S = 10.0
+"""A connection that has not sent its upgrade request (or got the SDK's answer) by then is
+closed: a peer that opens connections and says nothing would otherwise keep each forever."""
+MAX_CLIENTS = 16
+"""Connections served at once; one more is answered 503 and counted (each stalled client
+may hold an outbox of OUTBOX_BYTES for SEND_TIMEOUT_S: the bound keeps that sane)."""
+BUSY = (
+    b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n"
+    b"Retry-After: 5\r\n\r\n"
+)
 """How long closing the front waits for its connections to end."""
 MESSAGE_DATA = 0x01
 """The first byte of a server's binary Message Data frame (Foxglove WebSocket protocol)."""
@@ -64,6 +74,8 @@ class ViewerCounts:
     """Message Data frames a client's full outbox dropped."""
     clients_cut: int = 0
     """Clients disconnected: nothing taken for SEND_TIMEOUT_S, or the hard limit passed."""
+    clients_refused: int = 0
+    """Connections answered 503: MAX_CLIENTS were being served."""
 
 
 def split_frames(buf: bytearray) -> list[tuple[bytes, bool]]:
@@ -190,22 +202,27 @@ class SubprotocolFront:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
         try:
-            head = await reader.readuntil(b"\r\n\r\n")
+            if len(self._tasks) > MAX_CLIENTS:
+                self.counts.clients_refused += 1
+                writer.write(BUSY)
+                await asyncio.wait_for(writer.drain(), SEND_TIMEOUT_S)
+                return
+            head = await asyncio.wait_for(reader.readuntil(b"\r\n\r\n"), HANDSHAKE_TIMEOUT_S)
             head, legacy = rewrite_request(head)
             up_reader, upstream = await asyncio.open_connection(
                 "127.0.0.1", self.inner_port, limit=HEAD_LIMIT
             )
             upstream.write(head)
             await upstream.drain()
-            answer = await up_reader.readuntil(b"\r\n\r\n")
+            answer = await asyncio.wait_for(up_reader.readuntil(b"\r\n\r\n"), HANDSHAKE_TIMEOUT_S)
             writer.write(rewrite_response(answer) if legacy else answer)
             await writer.drain()
             if answer.startswith(b"HTTP/1.1 101"):  # WebSocket frames from here on
                 await _until(self._outbox(up_reader, writer), _pipe(reader, upstream))
             else:  # the SDK's refusal (400): its body, then the end
                 await _until(_pipe(up_reader, writer), _pipe(reader, upstream))
-        except (OSError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
-            pass  # a client that went away or was not one: nothing to serve
+        except (OSError, TimeoutError, asyncio.IncompleteReadError, asyncio.LimitOverrunError):
+            pass  # a client that went away, said nothing in time or was not one
         except asyncio.CancelledError:
             pass  # the front is closing (a connection's task ends quietly: nothing awaits it)
         except _SlowClient:

@@ -202,9 +202,10 @@ def _writer_main(conn: Connection) -> None:
 # -- the bench process's side ----------------------------------------------------------------
 def viewer_warning(counts: Mapping[str, int]) -> str:
     """The end-of-run line for what slow Foxglove viewers cost ("" when nothing)."""
-    from bench.mcaplog.foxglove_front import SEND_TIMEOUT_S
+    from bench.mcaplog.foxglove_front import MAX_CLIENTS, SEND_TIMEOUT_S
 
     dropped, cut = counts.get("messages_dropped", 0), counts.get("clients_cut", 0)
+    refused = counts.get("clients_refused", 0)
     parts = []
     if dropped:
         parts.append(f"{dropped} messages dropped for viewers that fell behind")
@@ -212,6 +213,11 @@ def viewer_warning(counts: Mapping[str, int]) -> str:
         parts.append(
             f"{cut} viewer{'s' if cut > 1 else ''} disconnected "
             f"(did not take what was sent within {SEND_TIMEOUT_S:g} s)"
+        )
+    if refused:
+        parts.append(
+            f"{refused} connection{'s' if refused > 1 else ''} refused "
+            f"({MAX_CLIENTS} viewers were being served)"
         )
     return "; ".join(parts) + " (the run and its log are not affected)" if parts else ""
 
