@@ -85,6 +85,7 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_records::test_bad_fleet_options_are_one_line
 19  random bytes named `.log`, a cut `.mcap` with 0 frames: "replayed", exit 0
     -> test_hostile_loss::test_replay_of_a_log_without_frames_is_an_error
+    -> test_hostile_loss::test_log_export_of_an_mcap_without_frames_is_an_error
     -> test_hostile_loss::test_fleet_rows_of_logs_without_frames_are_errors
 20  SIGTERM during `bench accept --realtime` leaves no junit/record/report
     -> test_hostile_records::test_sigterm_during_a_realtime_acceptance_writes_the_records

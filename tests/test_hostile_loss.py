@@ -210,6 +210,16 @@ def test_replay_of_a_log_without_frames_is_an_error(empty_logs, capsys, tmp_path
     assert not out.exists()
 
 
+@pytest.mark.parametrize("flag", ["--csv", "--parquet", "--candump"])
+def test_log_export_of_an_mcap_without_frames_is_an_error(empty_logs, capsys, tmp_path, flag):
+    """It exited 0 with a header-only CSV (a 0-byte candump log)."""
+    out = tmp_path / "out.x"
+    argv = ["log", "export", str(empty_logs["cut"]), flag, str(out)]
+    line = one_error(main(argv), capsys.readouterr().err)
+    assert "cut.mcap" in line and "no frame in this log" in line
+    assert not out.exists()
+
+
 def test_fleet_rows_of_logs_without_frames_are_errors(empty_logs, frames, tmp_path):
     """They counted as "replayed" with a null error, exit 0. And a FIFO among the logs
     waited forever; now it is that log's error row. Exit 1."""

@@ -103,6 +103,19 @@ def _export_candump(frames: np.ndarray, target: str) -> tuple[int, int]:
         raise write_error(target, exc) from None
 
 
+def _refuse_nothing_to_export(lg: Any, frames_only: bool) -> None:
+    """A log without a single frame (nor, for results, recorded results) is an error, as
+    in ``bench replay``: an empty export is no export (it exited 0 with a header-only
+    file). Nothing has been written yet."""
+    from bench.mcaplog import schemas as S
+    from bench.replay.run import no_frames
+
+    counts = lg.message_counts()
+    if counts.get(S.FRAME_TOPIC, 0) or (not frames_only and counts.get(S.RESULT_TOPIC, 0)):
+        return
+    raise no_frames(lg.path, [f"warning: {w}" for w in dict.fromkeys(lg.warnings)])
+
+
 def run_export(args: argparse.Namespace) -> int:
     from bench.mcaplog.reader import McapLog
 
@@ -112,6 +125,7 @@ def run_export(args: argparse.Namespace) -> int:
     check_clashes([("input log", args.file), ("--config", args.config)], [(flag, target)])
     check_output_file(target, what)  # before reading anything
     with McapLog(args.file) as lg:
+        _refuse_nothing_to_export(lg, frames_only=bool(args.candump or args.recompute))
         for warning in dict.fromkeys(lg.warnings):
             print(f"bench: warning: {warning}", file=sys.stderr)
         if args.candump:
