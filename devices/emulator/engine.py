@@ -23,6 +23,7 @@ from devices.emulator.antialias import gain_of
 from devices.emulator.board import FrameSet, adc_frames
 from devices.emulator.body_modes import BodyModes
 from devices.emulator.body_pitch import BodyPitch, pitched_specific_force, scenario_stations
+from devices.emulator.irregularity import rings
 from devices.emulator.motion import scenario_motion
 from devices.emulator.scenario import Fault, Scenario
 from devices.emulator.standstill import plan as standstill_plan
@@ -107,6 +108,7 @@ class Engine:
         # each channel's bias random walk: its own generator, summed in sample order
         self.walk = [fx.rng_for(seed, fx.LAYER_BIAS_WALK, i + 1) for i in range(len(sc.channels))]
         self.walk_at = np.zeros(len(sc.channels))  # the walk at the last sample so far
+        self.rings = rings(sc) if sc.track_irregularity.active and values else None
         self.stuck_carry: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.next = 0  # the first instant of the next block
 
@@ -154,7 +156,14 @@ class Engine:
         if self.still is not None:
             still_x, still_z = standstill_accel(sc, self.still, t, self.rate)
             body_x, body_z = body_x + still_x, body_z + still_z
-        extra = sc.vibration.active or sc.vertical_curve_accel or self.still is not None
+        if self.rings is not None:  # the line's joints and switches
+            body_z = body_z + self.rings.at(t, rate)
+        extra = (
+            sc.vibration.active
+            or sc.vertical_curve_accel
+            or self.still is not None
+            or self.rings is not None
+        )
         pitch = self.pitch.deg(t) if self.pitch is not None else None
         if self.modes is not None:  # bounce and bending along z, the pitch mode turns the axes
             mode_z, mode_pitch = self.modes.felt(t, motion.speed_mps, rate)

@@ -31,6 +31,7 @@ LAYER_UART = 4
 LAYER_VIBRATION = 5
 LAYER_WHEEL = 6
 LAYER_BODY_MODES = 7  # issue 25: the car body's bounce, pitch and bending modes
+LAYER_TRACK = 8  # issue 25: the line's joints (seeded by track_seed, not the run's seed)
 LAYER_BODY_PITCH = 11  # issue 25's physics: 11.. (other helpers' streams take 7..10)
 LAYER_STANDSTILL = 12
 LAYER_BIAS_WALK = 13  # index: the channel (1..3)

@@ -227,6 +227,42 @@ class BodyModesModel:
 
 
 @dataclass(frozen=True, slots=True)
+class TrackFeature:
+    """One point of the line the car feels (a switch, an insulated joint, a weld dip)."""
+
+    position_m: float
+    amplitude_mps2: float  # the ring's amplitude at the reference speed (< 0: drops first)
+    frequency_hz: float
+    damping: float
+
+
+@dataclass(frozen=True, slots=True)
+class IrregularityModel:
+    """Track irregularity fixed in position (devices.emulator.irregularity): listed
+    features and periodic rail joints, each felt by every axle as a damped ring whose
+    amplitude scales with (|v| / reference)^exponent. None by default: where a line's
+    switches and joints lie is the line's own."""
+
+    enabled: bool = True
+    features: tuple[TrackFeature, ...] = ()
+    joint_spacing_m: float = 0.0  # periodic joints (jointed rail); 0: continuously welded
+    joint_start_m: float = 0.0
+    joint_amplitude_mps2: float = 0.3
+    joint_spread: float = 0.5  # each joint's amplitude uniform in amplitude (1 +- spread)
+    frequency_hz: float = 9.0  # the ring of the periodic joints and the features' default
+    damping: float = 0.1
+    axles_m: tuple[float, ...] = (0.0,)  # each axle's distance ahead of the board
+    reference_speed_mps: float = 20.0
+    speed_exponent: float = 1.0
+    track_seed: int = 0  # the line's joints: independent of the run's seed
+
+    @property
+    def active(self) -> bool:
+        joints = self.joint_spacing_m > 0.0 and bool(self.joint_amplitude_mps2)
+        return self.enabled and (any(f.amplitude_mps2 for f in self.features) or joints)
+
+
+@dataclass(frozen=True, slots=True)
 class Fault:
     index: int  # 1-based position in [[faults]]
     kind: str
@@ -274,6 +310,7 @@ class Scenario:
     body_pitch: BodyPitchModel = field(default_factory=BodyPitchModel)
     standstill: StandstillModel = field(default_factory=StandstillModel)
     body_modes: BodyModesModel = field(default_factory=BodyModesModel)
+    track_irregularity: IrregularityModel = field(default_factory=IrregularityModel)
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -491,6 +528,73 @@ def _parse_body_modes(file: str, value: Any) -> BodyModesModel:
     return b
 
 
+MAX_FEATURES = 1024
+MAX_AXLES = 16
+
+
+def _parse_irregularity(file: str, value: Any) -> IrregularityModel:
+    t = Table(file, "track_irregularity", value)
+    freq = t.num("frequency_hz", 9.0, 0.0, 200.0, lo_open=True)
+    damping = t.num("damping", 0.1, 0.0, 0.9, lo_open=True)
+    items = t.array("features")
+    if len(items) > MAX_FEATURES:
+        raise t.error("features", f"at most {MAX_FEATURES} features, got {len(items)}")
+    feats = []
+    for i, item in enumerate(items, 1):
+        f = Table(file, f"track_irregularity.features[{i}]", item)
+        f.require("position_m", "where on the line the feature is")
+        feats.append(
+            TrackFeature(
+                position_m=f.num("position_m", None, -1e7, 1e7),
+                amplitude_mps2=f.num("amplitude_mps2", 0.5, -20.0, 20.0),
+                frequency_hz=f.num("frequency_hz", freq, 0.0, 200.0, lo_open=True),
+                damping=f.num("damping", damping, 0.0, 0.9, lo_open=True),
+            )
+        )
+        f.done()
+    axles = t.raw("axles_m", [0.0])
+    if (
+        not isinstance(axles, list)
+        or not 1 <= len(axles) <= MAX_AXLES
+        or not all(isinstance(a, int | float) and not isinstance(a, bool) for a in axles)
+        or not all(math.isfinite(a) and abs(a) <= 50.0 for a in axles)
+    ):
+        raise t.error("axles_m", f"expected 1..{MAX_AXLES} distances in [-50, 50] m, got {axles!r}")
+    m = IrregularityModel(
+        enabled=t.flag("enabled", True),
+        features=tuple(feats),
+        joint_spacing_m=t.num("joint_spacing_m", 0.0, 0.0, 1e4),
+        joint_start_m=t.num("joint_start_m", 0.0, -1e7, 1e7),
+        joint_amplitude_mps2=t.num("joint_amplitude_mps2", 0.3, -20.0, 20.0),
+        joint_spread=t.num("joint_spread", 0.5, 0.0, 1.0),
+        frequency_hz=freq,
+        damping=damping,
+        axles_m=tuple(float(a) for a in axles),
+        reference_speed_mps=t.num("reference_speed_mps", 20.0, 0.0, 150.0, lo_open=True),
+        speed_exponent=t.num("speed_exponent", 1.0, 0.0, 4.0, lo_open=True),
+        track_seed=t.integer("track_seed", 0, 0, (1 << 63) - 1),
+    )
+    if 0.0 < m.joint_spacing_m < 1.0:
+        raise t.error("joint_spacing_m", f"must be 0 or at least 1 m, got {m.joint_spacing_m!r}")
+    t.done(
+        (
+            "enabled",
+            "features",
+            "joint_spacing_m",
+            "joint_start_m",
+            "joint_amplitude_mps2",
+            "joint_spread",
+            "frequency_hz",
+            "damping",
+            "axles_m",
+            "reference_speed_mps",
+            "speed_exponent",
+            "track_seed",
+        )
+    )
+    return m
+
+
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
@@ -609,6 +713,7 @@ _TOP_KEYS = (
     "body_pitch",
     "standstill",
     "body_modes",
+    "track_irregularity",
     "faults",
 )
 
@@ -662,6 +767,7 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         body_pitch=_parse_body_pitch(source, top.raw("body_pitch", {})),
         standstill=_parse_standstill(source, top.raw("standstill", {}), rate),
         body_modes=_parse_body_modes(source, top.raw("body_modes", {})),
+        track_irregularity=_parse_irregularity(source, top.raw("track_irregularity", {})),
         faults=tuple(
             _parse_fault(source, i, item, duration)
             for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
