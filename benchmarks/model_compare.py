@@ -123,13 +123,7 @@ def main(argv: list[str]) -> int:
         print("\n".join(markdown(results)))
         return 0
     for r in results:
-        cells = []
-        for m in METHODS:
-            s = r[m]
-            cells.append(
-                f"{m} rms {_f(s['rms'])} p99 {_f(s['p99'])} avail {_f(s['avail'], 1)} "
-                f"wrong {_f(s['wrong'], 2)} cover {_f(s['cover'], 1)}"
-            )
+        cells = [f"{m} {_cells(r[m])}" for m in METHODS]
         e, es, et = r["wheel"]
         wheel = f"E {100 * e:+.2f}+-{100 * es:.2f} % (true {100 * et:+.2f})"
         print(f"{r['run']}: " + " | ".join(cells) + " | " + wheel)
@@ -142,17 +136,21 @@ def markdown(results: list[dict[str, Any]]) -> list[str]:
     head = "| run | " + " | ".join(f"{m} RMS, p99, avail %, wrong %, cover %" for m in METHODS)
     lines = [head + " | E found (true) |", "|---" * (len(METHODS) + 2) + "|"]
     for r in results:
-        cells = []
-        for m in METHODS:
-            s = r[m]
-            cells.append(
-                f"{_f(s['rms'], 2)}, {_f(s['p99'], 2)}, {_f(s['avail'], 1)}, "
-                f"{_f(s['wrong'], 2)}, {_f(s['cover'], 1)}"
-            )
+        cells = [_cells(r[m], ", ") for m in METHODS]
         e, es, et = r["wheel"]
         wheel = f"{100 * e:+.2f} +- {100 * es:.2f} % ({100 * et:+.2f})"
         lines.append(f"| {r['run']} | " + " | ".join(cells) + f" | {wheel} |")
     return lines
+
+
+def _cells(s: dict[str, Any], sep: str = " ") -> str:
+    """RMS, p99, availability, wrong, coverage of one method (names unless sep is given)."""
+    named = sep == " "
+    parts = [
+        (key, _f(s[key], digits)) for key, digits in
+        (("rms", 2), ("p99", 2), ("avail", 1), ("wrong", 2), ("cover", 1))
+    ]  # fmt: skip
+    return sep.join(f"{k} {v}" if named else v for k, v in parts)
 
 
 def _f(v: float | None, digits: int = 3) -> str:

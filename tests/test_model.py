@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bench.fusion.model import ekf, linalg, measure, process, smoother, state
-from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, L, S, V
+from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, L, P, S, V
 
 G = 9.80665
 THETA = np.radians([-30.0, 0.0, 30.0])  # a plausible mounting, not the code's default
@@ -31,11 +31,13 @@ def _x(
     e: float = 0.02,
     b: tuple[float, float, float] = (1e-3, -2e-3, 5e-4),
     lat: float = 0.0,
+    pitch: float = 0.0,
 ) -> np.ndarray:
     x = np.zeros(NX)
     x[V], x[A], x[S], x[K], x[E] = v, a, s, k, e
     x[B1], x[B2], x[B3] = b
     x[L] = lat
+    x[P] = pitch
     return x
 
 
@@ -49,7 +51,7 @@ def _numeric_jacobian(fn, x: np.ndarray, step: np.ndarray) -> np.ndarray:  # typ
     return np.column_stack(cols)
 
 
-STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5])
+STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5, 1e-6])
 
 
 def test_params_array_follows_the_named_indices() -> None:
@@ -68,7 +70,7 @@ def test_f_is_the_motion_and_the_track() -> None:
     out = process.f(x, dt)
     assert out[V] == pytest.approx(12.004, abs=1e-12)
     assert out[S] == pytest.approx(0.150024, abs=1e-12)
-    unchanged = [A, K, E, B1, B2, B3, L]
+    unchanged = [A, K, E, B1, B2, B3, L, P]
     assert np.array_equal(out[unchanged], x[unchanged])
 
 
@@ -106,11 +108,14 @@ def test_q_of_the_track_grows_with_distance_only() -> None:
 
 
 def test_q_of_the_biases_and_the_latency_grows_with_time() -> None:
-    prm = _prm(bias_psd=1e-9, latency_psd=1e-6)
+    prm = _prm(bias_psd=1e-9, latency_psd=1e-6, load_pitch_psd=1e-8, odometer_noise_mps=0.01)
     at_rest = process.noise(_x(v=0.0), 2.0, prm)
     for b in (B1, B2, B3):
         assert at_rest[b, b] == pytest.approx(2e-9, rel=1e-12)
     assert at_rest[L, L] == pytest.approx(2e-6, rel=1e-12)
+    # the load moves the body's pitch only while the train stands
+    assert at_rest[P, P] == pytest.approx(2e-8, rel=1e-12)
+    assert process.noise(_x(v=0.5), 2.0, prm)[P, P] == 0.0
 
 
 def _channels_reference(x: np.ndarray) -> np.ndarray:
@@ -118,7 +123,8 @@ def _channels_reference(x: np.ndarray) -> np.ndarray:
     u = x[A] + x[S]
     c = np.sqrt(G**2 - x[S] ** 2)
     w = c + x[V] ** 2 * x[K] / c
-    return np.column_stack([COS, SIN]) @ np.array([u, w]) + x[[B1, B2, B3]]
+    th = THETA + x[P]  # the body pitched by P turns every axis
+    return np.column_stack([np.cos(th), np.sin(th)]) @ np.array([u, w]) + x[[B1, B2, B3]]
 
 
 def test_channels_at_rest_on_a_gradient_read_g_sin_of_alpha_plus_theta() -> None:
@@ -126,11 +132,15 @@ def test_channels_at_rest_on_a_gradient_read_g_sin_of_alpha_plus_theta() -> None
     x = _x(v=0.0, a=0.0, s=G * math.sin(alpha), k=0.0, b=(0.0, 0.0, 0.0))
     expected = G * np.sin(alpha + THETA)
     np.testing.assert_allclose(measure.channels(x, COS, SIN, _prm()), expected, atol=1e-12)
+    # the body pitched 0.02 deg nose up by its load: every axis turns with it
+    x[P] = math.radians(0.02)
+    expected = G * np.sin(alpha + THETA + math.radians(0.02))
+    np.testing.assert_allclose(measure.channels(x, COS, SIN, _prm()), expected, atol=1e-12)
 
 
 def test_channels_match_the_reference_and_their_jacobian() -> None:
     prm = _prm()
-    for x in (_x(), _x(v=-30.0, s=-0.3, k=-5e-4), _x(v=0.0, k=0.0)):
+    for x in (_x(), _x(v=-30.0, s=-0.3, k=-5e-4), _x(v=0.0, k=0.0), _x(pitch=0.004)):
         np.testing.assert_allclose(
             measure.channels(x, COS, SIN, prm), _channels_reference(x), atol=1e-12
         )

@@ -25,6 +25,14 @@ ODOMETER_GATE = 25.0
 """A SPEED_REF reading with NIS beyond this (5 sigma) is not applied (slip, slide)."""
 CHANNEL_GATE = 50.0
 """A block's readings beyond this NIS are tried without each channel in turn."""
+PASSES = 2
+"""Forward-backward passes: the first finds the slipping frames, the second leaves them out."""
+SLIP_SIGMA = 4.0
+"""A SPEED_REF frame this many sigma off the smoothed speed is a slip or slide reading: the
+smoother's second pass leaves it out, with the frames within SLIP_MARGIN_S of it."""
+SLIP_MARGIN_S = 0.3
+"""A slide or slip builds up and decays over a WSP cycle (0.6-1.6 s): the frames this
+close to one found are of the same episode."""
 ODOMETER_FLOOR_MPS = 0.01
 """Odometer noise added to the settings' (1-sigma, m/s): what a wheel speed reads of a
 car's pitch and bounce and of its own resolution, beyond the sensor's white noise."""
@@ -125,17 +133,26 @@ class ModelLog:
         th = np.asarray(config.angles_rad, dtype=np.float64)
         block = max(1, int(BLOCK_S * config.sample_rate_hz))
         x0, p0 = state.initial(prm_obj)
-        _, xp, pp, xf, pf, jac, _ = run.forward(
-            b, y, used, fa, fw, fs, fr, fst, np.cos(th), np.sin(th), prm_obj.array(),
-            x0, p0, block, ODOMETER_GATE, CHANNEL_GATE,
-        )  # fmt: skip
-        xs, ps = smoother.rts(xp, pp, xf, pf, jac)
+        prm = prm_obj.array()
+        accept = np.ones(len(fa), dtype=np.bool_)
+        causal_x = causal_p = np.zeros(0)
+        for second in [False] * (PASSES - 1) + [True]:
+            t_mid, xp, pp, xf, pf, jac, _ = run.forward(
+                b, y, used, fa, fw, fs, fr, fst, accept, np.cos(th), np.sin(th), prm,
+                x0, p0, block, ODOMETER_GATE, CHANNEL_GATE,
+            )  # fmt: skip
+            xs, ps = smoother.rts(xp, pp, xf, pf, jac)
+            if not len(causal_x):
+                causal_x, causal_p = xf, pf  # the filter alone: what a live run could give
+            if second or not len(fa):
+                break
+            accept = _consistent(fa // block, fw, fs, t_mid, xs, prm_obj.odometer_noise_mps)
         idx = np.arange(n) // block
         few = used.sum(axis=1) < 2
         limit = config.gradient_sigma_limit_permil
         g = config.g
         out: list[np.ndarray] = []
-        for xx, px in ((xf, pf), (xs, ps)):
+        for xx, px in ((causal_x, causal_p), (xs, ps)):
             grad, sig = _gradient(xx[:, state.S], px[:, state.S, state.S], g)
             value, sigma = grad[idx], sig[idx]
             out += [np.where(few | ~(sigma <= limit), np.nan, value), sigma]
@@ -147,6 +164,24 @@ class ModelLog:
             wheel_scale=float(xs[0, state.E]),
             wheel_scale_sigma=float(math.sqrt(ps[0, state.E, state.E])),
         )
+
+
+def _consistent(
+    k: np.ndarray, fw: np.ndarray, fs: np.ndarray, t_mid: np.ndarray, xs: np.ndarray, sigma: float
+) -> np.ndarray:
+    """Per SPEED_REF frame (applied in block k, measured at board time fw, reading fs):
+    within SLIP_SIGMA of what the smoothed state expects of it, and no frame within
+    SLIP_MARGIN_S of it is not."""
+    x = xs[k]
+    age = t_mid[k] - fw + x[:, state.L]
+    expect = (1.0 + x[:, state.E]) * (x[:, state.V] - age * x[:, state.A])
+    off = np.abs(fs - expect) > SLIP_SIGMA * sigma
+    if not off.any():
+        return np.ones(len(fs), dtype=np.bool_)
+    bad_t = fw[off]
+    lo = np.searchsorted(bad_t, fw - SLIP_MARGIN_S, side="left")
+    hi = np.searchsorted(bad_t, fw + SLIP_MARGIN_S, side="right")
+    return np.asarray(hi == lo)
 
 
 def _gradient(s: np.ndarray, var_s: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:

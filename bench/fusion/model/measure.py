@@ -7,8 +7,9 @@ whenever the speed changes while the accelerometers measure the acceleration tha
 changed it, and L whenever the acceleration is not zero.
 
 Channel i, mounted at theta_i in the track's vertical plane, reads
-y_i = cos(theta_i) u + sin(theta_i) w + b_i with u = a + S, the specific force along the
-track, and w = c + v^2 K / c, c = sqrt(g^2 - S^2), normal to it (on a vertical curve of
+y_i = cos(theta_i + P) u + sin(theta_i + P) w + b_i with u = a + S, the specific force along
+the track, and w = c + v^2 K / c, c = sqrt(g^2 - S^2), normal to it; P is the body's pitch
+against the track (the board sits on the body) (on a vertical curve of
 radius R the car is pressed down or lifted by v^2 / R, and 1/R = K / c).
 """
 
@@ -19,7 +20,7 @@ import math
 import numpy as np
 
 from bench.fusion.model._jit import jit
-from bench.fusion.model.state import B1, NX, P_G, P_RCH, P_RODO, P_RVU, P_RVW, A, E, K, L, S, V
+from bench.fusion.model.state import B1, NX, P_G, P_RCH, P_RODO, P_RVU, P_RVW, A, E, K, L, P, S, V
 
 
 @jit
@@ -58,9 +59,12 @@ def channels(x: np.ndarray, cos_th: np.ndarray, sin_th: np.ndarray, prm: np.ndar
     u = x[A] + x[S]
     c = math.sqrt(g * g - x[S] * x[S])
     w = c + x[V] * x[V] * x[K] / c
+    cp, sp = math.cos(x[P]), math.sin(x[P])
     out = np.empty(3)
     for i in range(3):
-        out[i] = cos_th[i] * u + sin_th[i] * w + x[B1 + i]
+        ci = cos_th[i] * cp - sin_th[i] * sp  # cos(theta_i + P)
+        si = sin_th[i] * cp + cos_th[i] * sp  # sin(theta_i + P)
+        out[i] = ci * u + si * w + x[B1 + i]
     return out
 
 
@@ -72,15 +76,21 @@ def channels_jacobian(
     g = prm[P_G]
     s, v, k = x[S], x[V], x[K]
     c = math.sqrt(g * g - s * s)
+    u = x[A] + s
+    w = c + v * v * k / c
     dw_ds = -s / c + v * v * k * s / (c * c * c)
     dw_dv = 2.0 * v * k / c
     dw_dk = v * v / c
+    cp, sp = math.cos(x[P]), math.sin(x[P])
     out = np.zeros((3, NX))
     for i in range(3):
-        out[i, A] = cos_th[i]
-        out[i, S] = cos_th[i] + sin_th[i] * dw_ds
-        out[i, V] = sin_th[i] * dw_dv
-        out[i, K] = sin_th[i] * dw_dk
+        ci = cos_th[i] * cp - sin_th[i] * sp
+        si = sin_th[i] * cp + cos_th[i] * sp
+        out[i, A] = ci
+        out[i, S] = ci + si * dw_ds
+        out[i, V] = si * dw_dv
+        out[i, K] = si * dw_dk
+        out[i, P] = -si * u + ci * w
         out[i, B1 + i] = 1.0
     return out
 

@@ -4,7 +4,8 @@ The train moves (v += a dt) and its acceleration changes by white jerk; the grad
 changes only with distance: S += K dx with dx = v dt, S and K taking noise per metre
 travelled (an integrated random walk in x), so at standstill nothing about the track can
 grow uncertain. The wheel-scale error wears per metre, the biases and the odometer's
-latency walk in time.
+latency walk in time, the body's static pitch only while the train stands (the load
+moves at stations).
 """
 
 from __future__ import annotations
@@ -22,11 +23,14 @@ from bench.fusion.model.state import (
     P_QJ,
     P_QK,
     P_QL,
+    P_QP,
     P_QS,
+    P_RODO,
     A,
     E,
     K,
     L,
+    P,
     S,
     V,
 )  # fmt: skip
@@ -71,4 +75,6 @@ def noise(x: np.ndarray, dt: float, prm: np.ndarray) -> np.ndarray:
     for b in (B1, B2, B3):
         out[b, b] = prm[P_QB] * dt
     out[L, L] = prm[P_QL] * dt
+    if abs(x[V]) < prm[P_RODO]:  # standing (the odometer cannot tell it from 0): loading
+        out[P, P] = prm[P_QP] * dt
     return out

@@ -25,6 +25,30 @@ ZUPT_SIGMA_MPS2 = 0.002
 
 
 @jit
+def _rows(
+    idx: list[int],
+    ymean: np.ndarray,
+    count: np.ndarray,
+    hfull: np.ndarray,
+    jfull: np.ndarray,
+    rfull: np.ndarray,
+    prm: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(z, h, H, R) of the channels idx: R of a block mean has the white noise of count
+    samples (r / count), the vibration in full (it is not white over a block)."""
+    m = len(idx)
+    z, hx, jac, r = np.empty(m), np.empty(m), np.empty((m, NX)), np.empty((m, m))
+    for a in range(m):
+        z[a] = ymean[idx[a]]
+        hx[a] = hfull[idx[a]]
+        jac[a] = jfull[idx[a]]
+        for b in range(m):
+            r[a, b] = rfull[idx[a], idx[b]]
+        r[a, a] += prm[P_RCH] * prm[P_RCH] * (1.0 / count[idx[a]] - 1.0)
+    return z, hx, jac, r
+
+
+@jit
 def _channel_update(
     x: np.ndarray,
     cov: np.ndarray,
@@ -48,15 +72,7 @@ def _channel_update(
         idx = [i for i in range(3) if count[i] > 0 and i != drop]
         if len(idx) < 2 or (drop >= 0 and count[drop] == 0):
             continue
-        m = len(idx)
-        z, hx, jac, r = np.empty(m), np.empty(m), np.empty((m, NX)), np.empty((m, m))
-        for a in range(m):
-            z[a] = ymean[idx[a]]
-            hx[a] = hfull[idx[a]]
-            jac[a] = jfull[idx[a]]
-            for b in range(m):
-                r[a, b] = rfull[idx[a], idx[b]]
-            r[a, a] += prm[P_RCH] * prm[P_RCH] * (1.0 / count[idx[a]] - 1.0)
+        z, hx, jac, r = _rows(idx, ymean, count, hfull, jfull, rfull, prm)
         xn, pn, nis = update(x, cov, z, hx, jac, r)
         if drop == -1 and nis <= gate:
             return xn, pn, -1
@@ -69,15 +85,7 @@ def _channel_update(
     cov2 = cov.copy()
     cov2[A, A] += nu * nu
     idx = [i for i in range(3) if count[i] > 0]
-    m = len(idx)
-    z, hx, jac, r = np.empty(m), np.empty(m), np.empty((m, NX)), np.empty((m, m))
-    for a in range(m):
-        z[a] = ymean[idx[a]]
-        hx[a] = hfull[idx[a]]
-        jac[a] = jfull[idx[a]]
-        for b in range(m):
-            r[a, b] = rfull[idx[a], idx[b]]
-        r[a, a] += prm[P_RCH] * prm[P_RCH] * (1.0 / count[idx[a]] - 1.0)
+    z, hx, jac, r = _rows(idx, ymean, count, hfull, jfull, rfull, prm)
     xn, pn, _ = update(x, cov2, z, hx, jac, r)
     return xn, pn, -2
 
@@ -125,6 +133,7 @@ def forward(
     fs: np.ndarray,
     fr: np.ndarray,
     fst: np.ndarray,
+    accept: np.ndarray,
     cos_th: np.ndarray,
     sin_th: np.ndarray,
     prm: np.ndarray,
@@ -135,9 +144,10 @@ def forward(
     ch_gate: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """b (N,) board time s; y (N, 3) readings m/s^2; used (N, 3) channel usable; frames
-    (anchor sample, board time measured, speed m/s, restart, standstill). Returns per
-    block: mid-time, predicted x and P, filtered x and P, the Jacobian into the block, and
-    odometer rejects."""
+    (anchor sample, board time measured, speed m/s, restart, standstill, and whether it
+    may be applied: a smoother's second pass leaves out the frames its first found
+    slipping). Returns per block: mid-time, predicted x and P, filtered x and P, the
+    Jacobian into the block, and odometer rejects."""
     n = len(b)
     nb = (n + block - 1) // block
     t_mid = np.empty(nb)
@@ -170,6 +180,10 @@ def forward(
         t_mid[k] = tm
         # the frames the block's samples apply
         while fi < len(fa) and fa[fi] < hi:
+            if not accept[fi] and not fr[fi]:
+                rejects[k] += 1
+                fi += 1
+                continue
             delta = tm - fw[fi]
             z = np.empty(1)
             z[0] = fs[fi]

@@ -11,6 +11,8 @@ K     dS/dx, the gradient's change per metre (vertical curves), m/s^2 per m
 E     the odometer's wheel-scale error: it reads (1 + E) v (wheel diameter error), 1
 B1-3  each channel's bias, m/s^2 (random walk: a drifting channel is a large bias)
 L     the odometer's latency beyond the clock mapping, s: it reads v(t - L)
+P     the car body's static pitch on its suspension (the load), rad, nose up: every
+      channel's axis turns by it; it changes only while the train stands
 ====  ==========================================================================
 """
 
@@ -20,9 +22,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-V, A, S, K, E, B1, B2, B3, L = range(9)
-NX = 9
-NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3", "latency")
+V, A, S, K, E, B1, B2, B3, L, P = range(10)
+NX = 10
+NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3", "latency", "pitch")
 BIASES = (B1, B2, B3)
 
 
@@ -47,8 +49,8 @@ class ModelParams:
     wheel_scale0: float = 0.03  # prior sigma of E (a 3 % wheel-diameter error)
     bias0_mps2: float = 1e-3  # prior sigma of each bias (what calibration leaves)
     latency_psd: float = 1e-8  # random walk of the odometer's latency, s^2 / s
-    latency0_s: float = 0.0  # prior mean of the latency, s
-    latency_sigma0_s: float = 0.03  # its prior sigma, s
+    latency_sigma0_s: float = 0.03  # its prior sigma (mean 0), s
+    load_pitch_psd: float = 0.0  # random walk of the body's pitch while standing, rad^2 / s
     vibration_tau_s: float = 10.0  # the body's vibration is learnt over this long, s
 
     def array(self) -> np.ndarray:
@@ -74,8 +76,8 @@ class ModelParams:
     P_E0,
     P_B0,
     P_QL,
-    P_L0,
     P_LSIG0,
+    P_QP,
     P_VTAU,
 ) = range(20)
 NP = 20
@@ -88,11 +90,11 @@ def initial(
     x = np.zeros(NX)
     x[V] = speed
     x[S] = grade_s
-    x[L] = prm.latency0_s
     sig = np.zeros(NX)
     sig[V], sig[A], sig[S] = prm.speed0_mps, prm.accel0_mps2, prm.grade0_mps2
     sig[K], sig[E] = prm.grade_rate0_per_m, prm.wheel_scale0
     for b in BIASES:
         sig[b] = prm.bias0_mps2
     sig[L] = prm.latency_sigma0_s
+    sig[P] = prm.bias0_mps2 / prm.g  # calibration finds the board's angle as well as a bias
     return x, np.diag(sig * sig)
