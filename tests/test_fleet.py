@@ -193,3 +193,30 @@ def test_fleet_of_a_folder_with_no_log_is_one_error(tmp_path, capsys):
     assert main(["fleet", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("bench: error: no logs match") and err.count("\n") == 1
+
+
+def test_fleet_smooth_writes_the_smoothed_columns_of_replay_smooth(fleet, tmp_path):
+    from bench.replay.smooth import smoothing_pass
+
+    _, logs, _, _ = fleet
+    two = [p for p in logs if p.suffix == ".log"][:2]
+    out = tmp_path / "smoothed"
+    args = ["fleet", *map(str, two), "--out", str(out), "--workers", "2", "--smooth", "-q"]
+    assert main(args) == 0
+    rows = {Path(r["path"]).name: r for r in pq.read_table(out / "logs.parquet").to_pylist()}
+    for log in two:
+        row = rows[log.name]
+        assert row["smoothed"] is True
+        assert row["wheel_diameter_error_sigma"] > 0.0
+        got = pq.read_table(out / "results" / f"log={row['log']}" / "part-0.parquet")
+        source = open_log(log)
+        try:
+            want = smoothing_pass(source, Config())
+        finally:
+            source.close()
+        for name, values in (
+            ("gradient_smoothed_permil", want.smoothed),
+            ("gradient_smoothed_sigma_permil", want.smoothed_sigma),
+        ):
+            col = got[name].to_numpy(zero_copy_only=False)  # nulls -> NaN
+            assert col.tobytes() == values.tobytes(), name

@@ -42,6 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="calibration config (TOML) for every log; default: an MCAP log's recorded one, "
         "else the ICD's nominal values",
     )
+    p.add_argument(
+        "--smooth",
+        action="store_true",
+        help="also gradient_smoothed_permil and its sigma in results/ and the wheel-diameter "
+        "error found in logs.parquet (each log read twice; see bench replay --smooth)",
+    )
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar or table")
     p.set_defaults(func=run)
 
@@ -79,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         config_toml=config_toml,
         console=console,
         progress=not args.quiet and console.is_terminal,
+        smooth=args.smooth,
     )
     if not args.quiet:
         print_whole(fleet_table(outcome))

@@ -135,8 +135,11 @@ def run_fleet(
     config_toml: str | None = None,
     console: Console | None = None,
     progress: bool = True,
+    smooth: bool = False,
 ) -> FleetOutcome:
-    """Replay every log (one task each), write ``out_dir/logs.parquet``; rows in input order."""
+    """Replay every log (one task each), write ``out_dir/logs.parquet``; rows in input order.
+    ``smooth``: with the smoother's columns; a log done before is redone unless it was
+    done the same way."""
     from dask.distributed import as_completed
 
     out = Path(out_dir)
@@ -148,6 +151,7 @@ def run_fleet(
         if r.get("error") is None
         and r.get("content_hash")
         and (partition(out, r["log"]) / "part-0.parquet").exists()
+        and bool(r.get("smoothed")) == smooth
     }
     console = console or Console(stderr=True)
     client, cluster = _client(workers, scheduler)
@@ -162,6 +166,7 @@ def run_fleet(
             out_dir=str(out.resolve()),
             config_toml=config_toml,
             done=frozenset(done),
+            smooth=smooth,
             pure=False,
         )
         index = {f.key: i for i, f in enumerate(futures)}

@@ -42,10 +42,15 @@ def partition(out_dir: str | Path, lid: str) -> Path:
 
 
 def replay_one(
-    path: str, out_dir: str, config_toml: str | None, done: frozenset[str] = frozenset()
+    path: str,
+    out_dir: str,
+    config_toml: str | None,
+    done: frozenset[str] = frozenset(),
+    smooth: bool = False,
 ) -> dict[str, Any]:
     """Replay ``path`` into ``out_dir/results/log=<id>/`` and return its logs.parquet row.
-    ``done``: content hashes already replayed (the row then only says ``skipped``)."""
+    ``done``: content hashes already replayed (the row then only says ``skipped``);
+    ``smooth``: the results get the smoother's columns (bench.replay.smooth)."""
     from bench import __version__
 
     start = time.perf_counter()
@@ -71,7 +76,7 @@ def replay_one(
         return row
     part = partition(out_dir, lid)
     try:
-        row.update(_replay_into(path, part / PART_FILE, config_toml))
+        row.update(_replay_into(path, part / PART_FILE, config_toml, smooth))
     except Exception as exc:  # a log that cannot be read is a row, never the end of the run
         from bench.errors import BenchError
 
@@ -107,20 +112,35 @@ def _config_for(path: str, config_toml: str | None) -> Any:
     return _CONFIG_TOML[config_toml]
 
 
-def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, Any]:
+def _replay_into(
+    path: str, target: Path, config_toml: str | None, smooth: bool = False
+) -> dict[str, Any]:
     from bench.fleet.summary import SummarySink, summary_row
+    from bench.records.columns import RESULTS, SMOOTHED
     from bench.replay.run import no_frames, replay
+    from bench.replay.smooth import SmoothedSinks, smoothing_pass
     from bench.sinks.tables import abort_all, parquet_sink, results_metadata
     from devices.formats import open_log
 
     config = _config_for(path, config_toml)
+    smoothed = None
+    if smooth:  # the smoother's own reading of the log first (bench.replay.smooth)
+        first = open_log(path)
+        try:
+            smoothed = smoothing_pass(first, config)
+        finally:
+            first.close()
     source = open_log(path)
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         summary = SummarySink()
-        out = parquet_sink(target, results_metadata(config, path))  # renamed into place
+        layout = RESULTS if smoothed is None else SMOOTHED
+        out = parquet_sink(target, results_metadata(config, path), layout=layout)
+        joined = None if smoothed is None else SmoothedSinks([out], smoothed)
         try:
-            outcome = replay(source, config, [out, summary], collect=False)
+            outcome = replay(source, config, [joined or out, summary], collect=False)
+            if joined is not None:
+                joined.check_complete()
             if not outcome.pipeline.stats.frames:  # not "replayed": an error row
                 raise no_frames(path, outcome.notices)
         except BaseException:
@@ -133,4 +153,8 @@ def _replay_into(path: str, target: Path, config_toml: str | None) -> dict[str, 
     row["calibration"] = config.to_toml()
     row["calibration_source"] = config.describe()
     row["result_rows"] = out.rows
+    row["smoothed"] = smoothed is not None
+    if smoothed is not None:
+        row["wheel_diameter_error"] = smoothed.wheel_scale
+        row["wheel_diameter_error_sigma"] = smoothed.wheel_scale_sigma
     return row
