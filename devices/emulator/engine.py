@@ -182,7 +182,11 @@ class Engine:
             else:
                 ideal = specific_force(motion.accel_mps2, grad, sc.g, ch.angle_deg)
             h = gain_of(ch.vibration_hz, self.rate, filtered)
-            rise = self.thermal.channel(i, t) - sc.board.temperature_c
+            rise = (
+                self.thermal.channel(i, t) - sc.board.temperature_c
+                if ch.bias_tempco_mps2_per_k
+                else None  # no drift to compute
+            )
             values[i] = sensor_output(ideal, ch, t, self.noise[i], rise, h)
         return values
 
