@@ -62,6 +62,13 @@ STEADY_JERK_MPS3 = 0.05
 STEADY_RESIDUAL_MPS = 0.03
 """speed: a block is used where a parabola through the odometer's speeds over STEADY_S on
 each side has a jerk below this and leaves this rms (:func:`steady`)."""
+LOAD_SETTLE_S = 1.5
+LOAD_GUARD_S = 1.5
+LOAD_WINDOW_S = 1.5
+LOAD_EDGE = 0.15
+"""The body's static pitch changes at stops (:func:`load_pitch`): measured from LOAD_SETTLE_S
+after the stop and until LOAD_GUARD_S before the departure, means over LOAD_WINDOW_S but
+within LOAD_EDGE of the stop's length from each end."""
 MIN_ACCEL_S = 5.0
 MIN_ACCEL_MPS2 = 0.1
 """speed: the steady blocks must hold this much time (taper-weighted) of acceleration or
@@ -436,6 +443,8 @@ def _solve(
     normal_sigma: np.ndarray | None = None,
     scale_sigma: float | None = None,
     compliance: tuple[float, float] | None = None,
+    pitch: np.ndarray | None = None,
+    pitch_steps: list[tuple[int, float]] | None = None,
 ) -> Solution:
     """Gauss-Newton for theta (3) and the offsets marked in fit_offset; alpha per block is a
     nuisance (eliminated by projection) when free_alpha; ``normal_accel`` (c per block) is
@@ -451,9 +460,11 @@ def _solve(
     pseudo-measurement in the normal equations (the fit is the posterior's mode) and in
     the covariance's sandwich, so that where the recording does not determine C it keeps
     its prior's sigma and passes it on to the angles through their correlation with it.
-    With ``scale_sigma`` the reference's scale k (true a and c = k * given, k = 1 +/-
-    scale_sigma) is not fitted but considered: the covariance adds what it would move the
-    parameters by.
+    ``pitch`` is the body's static pitch per block (rad, known: :func:`load_pitch`), and
+    ``pitch_steps`` its changes, (first block after, 1 sigma), whose uncertainty the
+    covariance adds. With ``scale_sigma`` the reference's scale k (true a and c = k *
+    given, k = 1 +/- scale_sigma) is not fitted but considered: the covariance adds what it
+    would move the parameters by.
     """
     nb = len(m)
     off_idx = np.flatnonzero(fit_offset)
@@ -464,6 +475,7 @@ def _solve(
         c_col, n_par = n_par, n_par + 1
         priors.append((c_col, compliance[0], compliance[1]))
     c = np.zeros(nb) if normal_accel is None else normal_accel
+    lp = np.zeros(nb) if pitch is None else pitch
     sw = np.ones(nb) if weights is None else np.sqrt(weights)
     x = np.zeros(n_par)
     x[:3] = theta
@@ -483,7 +495,7 @@ def _solve(
     def model(alpha: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(weighted residuals, d(pred)/d(axis angle), d(pred)/d(alpha)), each (B, 3)."""
         th, b, cc = unpack(x)
-        psi = th[None, :] + (cc * a)[:, None]  # each axis on the pitched body
+        psi = th[None, :] + (cc * a + lp)[:, None]  # each axis on the pitched body
         phi = alpha[:, None] + psi
         aa, ca = a[:, None], c[:, None]
         pred = aa * np.cos(psi) + ca * np.sin(psi) + g * np.sin(phi) + b
@@ -558,12 +570,12 @@ def _solve(
         cov = hac if nb >= 4 * lags else np.maximum(cov, hac)
         if normal_sigma is not None:  # d(residual)/dc = -sin(psi) (weighted, projected)
             th, _, cc = unpack(x)
-            dc = np.sin(th[None, :] + (cc * a)[:, None]) * (sw * normal_sigma)[:, None]
+            dc = np.sin(th[None, :] + (cc * a + lp)[:, None]) * (sw * normal_sigma)[:, None]
             q = np.einsum("jip,ji->jp", jp, dc)
             cov = cov + inv @ newey_west(q, ids, lags) @ inv
     if scale_sigma is not None:  # what a scale k = 1 +/- scale_sigma would move them by
         th, _, cc = unpack(x)
-        psi = th[None, :] + (cc * a)[:, None]
+        psi = th[None, :] + (cc * a + lp)[:, None]
         _, d_psi, _ = model(alpha, x)
         jk = a[:, None] * np.cos(psi) + c[:, None] * np.sin(psi) + d_psi * (cc * a)[:, None]
         jk = jk * sw[:, None]
@@ -571,6 +583,17 @@ def _solve(
             jk = project(jk, gn)
         shift = inv @ np.einsum("jip,ji->p", jp, jk)
         cov = cov + scale_sigma**2 * np.outer(shift, shift)
+    if pitch_steps:  # what each measured change of the static pitch would move them by
+        _, d_psi, _ = model(alpha, x)
+        jl = d_psi * sw[:, None]
+        if free_alpha:
+            jl = project(jl, gn)
+        per_block = np.einsum("jip,ji->jp", jp, jl)
+        after = np.cumsum(per_block[::-1], axis=0)[::-1]  # sums over blocks j0 .. end
+        for j0, sigma in pitch_steps:
+            if j0 < nb:
+                shift = inv @ after[j0]
+                cov = cov + sigma**2 * np.outer(shift, shift)
     th, b, cc = unpack(x)
     plain = r / sw[:, None]
     rms = math.sqrt(float(np.sum(plain**2)) / (3 * nb))
@@ -588,6 +611,61 @@ def newey_west(scores: np.ndarray, ids: np.ndarray, lags: int) -> np.ndarray:
         cross = full[:-lag].T @ full[lag:]
         out += (1.0 - lag / (lags + 1)) * (cross + cross.T)
     return out
+
+
+def stops_of(rec: Recording, ids: np.ndarray) -> np.ndarray:
+    """Per block of ``ids``: the number of the stop it is in (SPEED_REF reading exactly 0
+    on every sample of the block, 0 for the recording's first stop if it starts standing,
+    counted in order), -1 where the train moves."""
+    block = np.floor(rec.time_s / BLOCK_S).astype(np.int64)
+    standing = rec.speed == 0.0
+    starts = standing & ~np.concatenate([[False], standing[:-1]])
+    stop = np.cumsum(starts) - 1
+    lo = int(block.min())
+    span = int(block.max()) - lo + 1
+    moving = np.bincount(block - lo, (~standing).astype(np.float64), minlength=span) > 0
+    first = np.full(span, -1)
+    np.maximum.at(first, block - lo, np.where(standing, stop, -1))
+    out: np.ndarray = np.where(moving[ids - lo], -1, first[ids - lo])
+    return out
+
+
+def load_pitch(
+    ids: np.ndarray, stops: np.ndarray, phi: np.ndarray
+) -> tuple[np.ndarray, list[tuple[int, float]]]:
+    """The body's static pitch per block (rad, 0 at the recording's start): the sum of its
+    changes at the stops before the block. Passengers board while the train stands, and
+    then the track under it does not change, so the change of the gravity's direction in
+    the board (``phi`` per block) from soon after the stop (LOAD_SETTLE_S, the braking's
+    transient gone; at once if the recording starts standing) to a little before the
+    departure (LOAD_GUARD_S, before the odometer sees the train move) is the body's. Each
+    window is LOAD_WINDOW_S long, but never more than LOAD_EDGE of the stop (its doors open
+    and close inside); stops too short for both windows count as no change. Also returns
+    each change as (first block after the stop, its 1 sigma from the windows' scatter)."""
+    out = np.zeros(len(ids))
+    steps: list[tuple[int, float]] = []
+    total = 0.0
+    done = 0  # blocks before this have their pitch
+    for stop in np.unique(stops[stops >= 0]):
+        where = np.flatnonzero(stops == stop)
+        j0, j1 = int(where[0]), int(where[-1]) + 1
+        out[done:j0] = total
+        first, last = ids[j0] * BLOCK_S, (ids[j1 - 1] + 1) * BLOCK_S
+        length = last - first
+        t = (ids[where] + 0.5) * BLOCK_S - first
+        settle = 0.0 if j0 == 0 else LOAD_SETTLE_S
+        end0 = min(settle + LOAD_WINDOW_S, LOAD_EDGE * length)
+        start1 = max(length - LOAD_GUARD_S - LOAD_WINDOW_S, (1.0 - LOAD_EDGE) * length)
+        p0 = phi[where[(t >= settle) & (t < end0)]]
+        p1 = phi[where[(t >= start1) & (t < length - LOAD_GUARD_S)]]
+        out[j0:j1] = total
+        done = j1
+        if len(p0) > 1 and len(p1) > 1 and end0 <= start1:
+            total += float(np.mean(p1) - np.mean(p0))
+            var = float(np.var(p0, ddof=1)) + float(np.var(p1, ddof=1))  # n_eff ~ 1 each
+            steps.append((j1, math.sqrt(var)))
+    out[done:] = total
+    return out, steps
 
 
 def curvature(alpha: np.ndarray, x: np.ndarray, speed: np.ndarray) -> np.ndarray:
@@ -714,6 +792,7 @@ def calibrate(
     if reference == "speed":  # start each block's gradient where the starting angles put it
         u, w = solve(m, np.full(len(m), FULL), geometry(theta0))
         alpha = np.arctan2(u - a, w)
+        pitch, pitch_steps = load_pitch(ids, stops_of(rec, ids), np.arctan2(u, w))
     elif reference == "level":
         a = np.zeros(len(ids))
         alpha = np.zeros(len(ids))
@@ -746,6 +825,8 @@ def calibrate(
                 curve_sigma(c, ids),
                 WHEEL_ERROR_SIGMA if moving else None,
                 (COMPLIANCE_RAD, COMPLIANCE_SIGMA_RAD) if moving else None,
+                pitch if moving else None,
+                pitch_steps if moving else None,
             )
             if not moving:
                 break
