@@ -40,6 +40,8 @@ DEFAULT_JSON = ROOT / "benchmarks" / "results.json"
 # name, kwargs (full), kwargs (quick), timeout s (full)
 PLAN: list[tuple[str, dict[str, Any], dict[str, Any], float]] = [
     ("replay", {"n_frames": 1_000_000, "repeat": 3}, {"n_frames": 200_000, "repeat": 2}, 480),
+    # issue 29: whole-process replay against a LogReader process, and the start-up
+    ("replay_process", {"n_frames": 1_200_000, "repeat": 2}, {"n_frames": 200_000}, 300),
     ("fusion", {"n_samples": 1_000_000, "repeat": 5}, {"n_samples": 300_000, "repeat": 3}, 120),
     ("replay_memory", {"sizes": [1_000_000, 10_000_000]}, {"sizes": [1_000_000, 2_000_000]}, 900),
     (
@@ -215,6 +217,8 @@ def _measurement_of(fig: dict[str, Any]) -> str:
     key = str(fig.get("key", ""))
     if key.startswith("live_max_rate"):
         return "live_rate"
+    if key.startswith(("replay_process_", "replay_first_step")):
+        return "replay_process"
     if key.startswith(("replay_", "read_", "mcap_", "pipeline_")):
         return "replay"
     if key.startswith("random_"):

@@ -48,6 +48,10 @@ def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
         from benchmarks import live
 
         return live.measure_latency(**kwargs)
+    if name == "replay_process":
+        from benchmarks import replay_process
+
+        return replay_process.measure(**kwargs)
     if name == "replay_memory":
         from benchmarks import outputs
 

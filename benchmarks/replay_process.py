@@ -1,0 +1,148 @@
+"""Whole-process ``bench replay`` of a candump log next to python-can's bare ``LogReader``
+iteration of the same file, each in a fresh interpreter, alternated, best of ``repeat``.
+
+Issue 29's figures: the process's wall time from launch to exit (imports, reading,
+the pipeline, the output file closed) for ``--csv`` (target >= 3x the LogReader process's
+frame rate) and ``--parquet`` (>= 4x), without an output file (informational), and the
+start-up: from launch to the end of the first pipeline step (target <= 0.4 s), taken in the
+same processes (the child notes the time at which ``Pipeline.process`` first returns).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import ROOT, Figure, frames_for, warm_file
+
+CSV_TARGET = 3.0
+PARQUET_TARGET = 4.0
+FIRST_STEP_TARGET_S = 0.4
+
+_ANCHOR = """
+import sys, can
+n = 0
+for _msg in can.LogReader(sys.argv[1]):
+    n += 1
+print(n)
+"""
+
+_BENCH = """
+import json, os, sys, time
+first = []
+from bench.pipeline import steps
+_process = steps.Pipeline.process
+def process(self, batch):
+    out = _process(self, batch)
+    if not first:
+        first.append(time.time())
+    return out
+steps.Pipeline.process = process
+from bench.cli import main
+code = main(["replay", *sys.argv[1:], "-q"])
+with open(os.environ["BENCH_TIMES"], "w") as f:
+    json.dump({"code": code, "first_step": first[0] if first else None}, f)
+"""
+"""The bench's child: ``bench replay ARGS -q`` with the end of its first pipeline step noted
+(the patch imports bench.pipeline.steps first, which ``bench replay`` imports anyway)."""
+
+
+def _run(code: str, args: list[str], times: Path) -> tuple[float, dict[str, Any], str]:
+    """Wall time of a fresh interpreter running ``code`` (launch to exit), what it noted in
+    ``times``, and its stderr."""
+    times.unlink(missing_ok=True)
+    env = {**os.environ, "BENCH_TIMES": str(times)}
+    t0 = time.time()
+    proc = subprocess.run(
+        [sys.executable, "-c", code, *args], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    dt = time.time() - t0
+    noted: dict[str, Any] = json.loads(times.read_text()) if times.exists() else {}
+    if proc.returncode != 0:
+        noted["error"] = (proc.stderr.strip().splitlines() or [f"exit {proc.returncode}"])[-1]
+    if noted.get("first_step") is not None:
+        noted["first_step"] -= t0
+    return dt, noted, proc.stderr
+
+
+def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = None) -> list[Figure]:
+    from devices.writers import write_candump
+
+    figures: list[Figure] = []
+    with tempfile.TemporaryDirectory(prefix="bench-replay-process-", dir=workdir) as tmp:
+        d = Path(tmp)
+        log, times = d / "board.log", d / "times.json"
+        write_candump(log, frames_for(n_frames))
+        warm_file(log)
+        variants = {
+            "none": [],
+            "csv": ["--csv", str(d / "out.csv")],
+            "parquet": ["--parquet", str(d / "out.parquet")],
+        }
+        best: dict[str, float] = {}
+        first: dict[str, float] = {}
+        errors: dict[str, str] = {}
+        anchor_s = float("inf")
+        for _ in range(repeat):  # alternated: the anchor and each variant under the same load
+            dt, _, _ = _run(_ANCHOR, [str(log)], times)
+            anchor_s = min(anchor_s, dt)
+            for name, extra in variants.items():
+                dt, noted, _ = _run(_BENCH, [str(log), *extra], times)
+                if noted.get("error") or noted.get("code"):
+                    errors[name] = noted.get("error") or f"exit {noted.get('code')}"
+                    continue
+                best[name] = min(best.get(name, float("inf")), dt)
+                if noted.get("first_step") is not None:
+                    first[name] = min(first.get(name, float("inf")), noted["first_step"])
+        anchor = n_frames / anchor_s
+        for name, label, target in (
+            ("none", "replay process, candump .log", None),
+            ("csv", "replay process, candump .log + CSV", CSV_TARGET),
+            ("parquet", "replay process, candump .log + Parquet", PARQUET_TARGET),
+        ):
+            wall = best.get(name)
+            figures.append(
+                Figure(
+                    f"replay_process_{name}",
+                    label,
+                    n_frames / wall if wall else None,
+                    "frames/s",
+                    target=target,
+                    on="ratio",
+                    anchor=anchor,
+                    anchor_label="python-can LogReader process",
+                    detail=(
+                        f"`bench replay LOG {' '.join(variants[name])}`, launch to exit "
+                        f"{wall:.2f} s, best of {repeat}; LogReader process {anchor_s:.2f} s; "
+                        f"{n_frames} frames, {log.stat().st_size / 1e6:.0f} MB"
+                        if wall
+                        else ""
+                    ),
+                    error=errors.get(name, ""),
+                    extra={"seconds": wall, "anchor_seconds": anchor_s},
+                )
+            )
+        figures.append(
+            Figure(
+                "replay_first_step",
+                "  replay process, launch to first pipeline step",
+                min(first.values()) if first else None,
+                "s",
+                target=FIRST_STEP_TARGET_S,
+                op="<=",
+                detail=", ".join(f"{k} {v:.2f} s" for k, v in first.items()),
+                extra=dict(first),
+            )
+        )
+    return figures
+
+
+if __name__ == "__main__":  # pragma: no cover - convenience
+    for fig in measure(**json.loads(sys.argv[1] if len(sys.argv) > 1 else "{}")):
+        print(fig.label, fig.value, fig.unit, fig.ratio, fig.detail, fig.error)
