@@ -46,6 +46,7 @@ def geometry(angles_rad: tuple[float, float, float] | np.ndarray) -> Geometry:
     parity = np.cross(h[:, 0], h[:, 1])
     parity /= np.linalg.norm(parity)
     rows = tuple((tuple(p[0].tolist()), tuple(p[1].tolist())) for p in pinv)
+    # tolist() is typed list[Any]: the tuples' lengths (2 rows of 3) are the arrays' shapes
     return Geometry(rows, tuple(parity.tolist()), pinv)  # type: ignore[arg-type]
 
 

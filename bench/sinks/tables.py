@@ -343,8 +343,8 @@ class TableSink:
                     buffered, n_buffered = rest.to_batches(), rest.num_rows
             if end:
                 break
-            live_file = self.live and self.staged is not None and self.error is None
-            if live_file and (why := self.staged.problem()):  # type: ignore[union-attr]
+            staged = self.staged if self.live and self.error is None else None
+            if staged is not None and (why := staged.problem()):
                 self._fail(OSError(why), 0)  # like a full disk: the rows go nowhere
         try:
             self.file.close()
