@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -53,17 +54,24 @@ with open(os.environ["BENCH_TIMES"], "w") as f:
 (the patch imports bench.pipeline.steps first, which ``bench replay`` imports anyway)."""
 
 
+def _cpu_s() -> float:
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
+
+
 def _run(code: str, args: list[str], times: Path) -> tuple[float, dict[str, Any], str]:
     """Wall time of a fresh interpreter running ``code`` (launch to exit), what it noted in
-    ``times``, and its stderr."""
+    ``times`` (with ``cpu_s``, its CPU time: the steadier figure on a loaded machine), and
+    its stderr."""
     times.unlink(missing_ok=True)
     env = {**os.environ, "BENCH_TIMES": str(times)}
-    t0 = time.time()
+    t0, cpu0 = time.time(), _cpu_s()
     proc = subprocess.run(
         [sys.executable, "-c", code, *args], cwd=ROOT, env=env, capture_output=True, text=True
     )
     dt = time.time() - t0
     noted: dict[str, Any] = json.loads(times.read_text()) if times.exists() else {}
+    noted["cpu_s"] = _cpu_s() - cpu0
     if proc.returncode != 0:
         noted["error"] = (proc.stderr.strip().splitlines() or [f"exit {proc.returncode}"])[-1]
     if noted.get("first_step") is not None:
@@ -86,18 +94,21 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
             "parquet": ["--parquet", str(d / "out.parquet")],
         }
         best: dict[str, float] = {}
+        cpu: dict[str, float] = {}
         first: dict[str, float] = {}
         errors: dict[str, str] = {}
         anchor_s = float("inf")
         for _ in range(repeat):  # alternated: the anchor and each variant under the same load
-            dt, _, _ = _run(_ANCHOR, [str(log)], times)
+            dt, noted, _ = _run(_ANCHOR, [str(log)], times)
             anchor_s = min(anchor_s, dt)
+            cpu["anchor"] = min(cpu.get("anchor", float("inf")), noted["cpu_s"])
             for name, extra in variants.items():
                 dt, noted, _ = _run(_BENCH, [str(log), *extra], times)
                 if noted.get("error") or noted.get("code"):
                     errors[name] = noted.get("error") or f"exit {noted.get('code')}"
                     continue
                 best[name] = min(best.get(name, float("inf")), dt)
+                cpu[name] = min(cpu.get(name, float("inf")), noted["cpu_s"])
                 if noted.get("first_step") is not None:
                     first[name] = min(first.get(name, float("inf")), noted["first_step"])
         anchor = n_frames / anchor_s
@@ -120,12 +131,18 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
                     detail=(
                         f"`bench replay LOG {' '.join(variants[name])}`, launch to exit "
                         f"{wall:.2f} s, best of {repeat}; LogReader process {anchor_s:.2f} s; "
+                        f"CPU {cpu[name]:.2f} s, LogReader {cpu['anchor']:.2f} s; "
                         f"{n_frames} frames, {log.stat().st_size / 1e6:.0f} MB"
                         if wall
                         else ""
                     ),
                     error=errors.get(name, ""),
-                    extra={"seconds": wall, "anchor_seconds": anchor_s},
+                    extra={
+                        "seconds": wall,
+                        "anchor_seconds": anchor_s,
+                        "cpu_s": cpu.get(name),
+                        "anchor_cpu_s": cpu.get("anchor"),
+                    },
                 )
             )
         figures.append(
