@@ -58,6 +58,8 @@ STREAMS = {
     "body_pitch": 21,
     "standstill": 22,
     "sensor_drift": 23,
+    "body_modes": 24,
+    "track": 25,
 }
 
 ODOMETER_CLASSES = ("usable", "poor", "absent")
@@ -284,6 +286,63 @@ def _ride(seed: int, rate: int, cruise_mps: float) -> tuple[dict[str, Any], str]
             m["vibration_hz"] = _r(min(rng.uniform(8.0, 45.0), nyq), 2)
             m["vibration_phase_deg"] = _r(rng.uniform(-180.0, 180.0), 1)
     return {"vibration": vib, "mounts": mounts}, kind
+
+
+def _body_modes(seed: int, cruise_mps: float) -> dict[str, Any]:
+    """The car body's own modes (issue 25): bounce 1.0..1.5 Hz, damping 0.1..0.3, RMS
+    0.02..0.12 m/s^2; pitch 1.5..2 Hz, damping 0.1..0.3, RMS 0.003..0.02 deg; bending
+    7..12 Hz, damping 0.01..0.05, RMS 0.01..0.08 m/s^2; the board 0..6 m off the body's
+    centre either way; at the line's cruising speed (as the ride), exponent 0.5..1.5."""
+    rng = _rng(seed, "body_modes")
+
+    def mode(unit: str, rms: tuple[float, float], f: tuple[float, float], z: tuple[float, float]):
+        return {
+            unit: _r(rng.uniform(*rms), 4),
+            "frequency_hz": _r(rng.uniform(*f), 2),
+            "damping": _r(rng.uniform(*z), 3),
+        }
+
+    return {
+        "bounce": mode("rms_mps2", (0.02, 0.12), (1.0, 1.5), (0.1, 0.3)),
+        "pitch": mode("rms_deg", (0.003, 0.02), (1.5, 2.0), (0.1, 0.3)),
+        "bending": mode("rms_mps2", (0.01, 0.08), (7.0, 12.0), (0.01, 0.05)),
+        "lever_m": _r(rng.uniform(-6.0, 6.0), 2),
+        "reference_speed_mps": _r(max(10.0, cruise_mps), 1),
+        "speed_exponent": _r(rng.uniform(0.5, 1.5), 2),
+    }
+
+
+def _track_irregularity(seed: int, start_m: float, reach_m: float) -> dict[str, Any]:
+    """Track irregularity fixed in position (issue 25): jointed rail with p 0.3 (joints
+    every 18..30 m, 0.1..0.5 m/s^2 at 20 m/s, spread 0.3..0.7); 0..2 switches or dips per
+    km of the run's reach (at most 12), each 0.2..1.5 m/s^2 either sign; rings at 6..12 Hz,
+    damping 0.05..0.2; the car's four axles at its bogie centres +-5..8 m, wheelbase
+    2..2.6 m, seen from a board 0..3 m off the centre; the line's own seed."""
+    rng = _rng(seed, "track")
+    centre, base, board = rng.uniform(5.0, 8.0), rng.uniform(2.0, 2.6), rng.uniform(-3.0, 3.0)
+    axles = [centre + base / 2, centre - base / 2, -centre + base / 2, -centre - base / 2]
+    out: dict[str, Any] = {
+        "frequency_hz": _r(rng.uniform(6.0, 12.0), 2),
+        "damping": _r(rng.uniform(0.05, 0.2), 3),
+        "axles_m": [_r(a - board, 2) for a in axles],
+        "track_seed": seed,
+    }
+    if rng.random() < 0.3:
+        out |= {
+            "joint_spacing_m": _r(rng.uniform(18.0, 30.0), 2),
+            "joint_start_m": _r(start_m + rng.uniform(0.0, 18.0), 2),
+            "joint_amplitude_mps2": _r(rng.uniform(0.1, 0.5), 3),
+            "joint_spread": _r(rng.uniform(0.3, 0.7), 2),
+        }
+    n = min(12, int(rng.integers(0, 1 + int(2 * reach_m / 1000.0))))
+    out["features"] = [
+        {
+            "position_m": _r(start_m + rng.uniform(0.0, reach_m), 1),
+            "amplitude_mps2": _r(rng.choice((-1.0, 1.0)) * rng.uniform(0.2, 1.5), 3),
+        }
+        for _ in range(n)
+    ]
+    return out
 
 
 # ------------------------------------------------------------------------------ the board
@@ -537,6 +596,10 @@ def draw(seed: int) -> Drawn:
         "vibration": ride["vibration"],
         "body_pitch": _body_pitch(seed),
         "standstill": _standstill(seed, rate),
+        "body_modes": _body_modes(seed, 0.8 * tfacts["top_speed_mps"]),
+        "track_irregularity": _track_irregularity(
+            seed, line["initial_position_m"], tfacts["top_speed_mps"] * duration
+        ),
     }
     if faults:
         data["faults"] = faults

@@ -70,6 +70,27 @@ def test_drawn_values_stay_inside_their_documented_ranges() -> None:
         assert 5.0 <= d.facts["top_speed_mps"] <= 45.0
         assert 0.0 <= x["odometer"]["lag_s"] <= 0.1
         assert x["vibration"]["broadband_high_hz"] <= 0.45 * x["sample_rate_hz"]
+        bm = x["body_modes"]  # issue 25's ranges: bounce 1-1.5, pitch 1.5-2, bending 7-12 Hz
+        for name, unit, rms, f, z in (
+            ("bounce", "rms_mps2", (0.02, 0.12), (1.0, 1.5), (0.1, 0.3)),
+            ("pitch", "rms_deg", (0.003, 0.02), (1.5, 2.0), (0.1, 0.3)),
+            ("bending", "rms_mps2", (0.01, 0.08), (7.0, 12.0), (0.01, 0.05)),
+        ):
+            assert rms[0] <= bm[name][unit] <= rms[1], name
+            assert f[0] <= bm[name]["frequency_hz"] <= f[1], name
+            assert z[0] <= bm[name]["damping"] <= z[1], name
+        assert abs(bm["lever_m"]) <= 6.0 and 0.5 <= bm["speed_exponent"] <= 1.5
+        ti = x["track_irregularity"]
+        assert 6.0 <= ti["frequency_hz"] <= 12.0 and 0.05 <= ti["damping"] <= 0.2
+        axles = sorted(ti["axles_m"])
+        assert len(axles) == 4 and 1.98 <= axles[1] - axles[0] <= 2.62  # a wheelbase, to 1 cm
+        centre = (axles[3] + axles[2] - axles[1] - axles[0]) / 4  # the bogie centres +-c
+        assert 5.0 - 0.01 <= centre <= 8.0 + 0.01  # (0.01: the axles are written to 1 cm)
+        assert ti["track_seed"] == seed and len(ti["features"]) <= 12
+        assert all(0.2 <= abs(f["amplitude_mps2"]) <= 1.5 for f in ti["features"])
+        if "joint_spacing_m" in ti:
+            assert 18.0 <= ti["joint_spacing_m"] <= 30.0
+            assert 0.1 <= ti["joint_amplitude_mps2"] <= 0.5
         poor = (
             x["odometer"].get("slide_depth_mps", 0) > 0
             or x["odometer"].get("slip_depth_mps", 0) > 0

@@ -51,23 +51,23 @@ def response(freq_hz: np.ndarray, fn_hz: float, zeta: float) -> np.ndarray:
 
 @dataclass(frozen=True, slots=True)
 class Tones:
-    """One mode's multisine: frequencies (Hz), amplitudes and phases (rad)."""
+    """A multisine: frequencies (Hz), amplitudes and phases (rad)."""
 
     freq: np.ndarray
     amp: np.ndarray
     phase: np.ndarray
 
-    def at(self, t: np.ndarray, rate_hz: float | None, order: int = 0) -> np.ndarray:
-        """The sum at times t (its ``order``-th time derivative: 0 or 2), each tone times the
-        anti-alias gain of a board at ``rate_hz`` (None: unfiltered)."""
+    def at(self, t: np.ndarray, rate_hz: float | None, weights: np.ndarray) -> np.ndarray:
+        """(len(t), k): column j is sum_i weights[i, j] amp_i sin(2 pi f_i t + phase_i),
+        each tone times the anti-alias gain of a board at ``rate_hz`` (None: unfiltered).
+        One sine per tone and instant serves every column."""
         amp = self.amp if rate_hz is None else self.amp * gain(self.freq, rate_hz)
+        w = weights * amp[:, None]
         omega = 2.0 * math.pi * self.freq
-        if order == 2:
-            amp = -amp * omega * omega
-        out = np.empty_like(t)
+        out = np.empty((len(t), w.shape[1]))
         for lo in range(0, len(t), BLOCK):
             block = t[lo : lo + BLOCK]
-            out[lo : lo + BLOCK] = (np.sin(np.outer(block, omega) + self.phase) * amp).sum(axis=1)
+            out[lo : lo + BLOCK] = np.sin(np.outer(block, omega) + self.phase) @ w
         return out
 
 
@@ -89,18 +89,26 @@ class BodyModes:
     """The modes of one scenario, drawn once; evaluated at any times."""
 
     model: BodyModesModel
-    bounce: Tones
-    pitch: Tones
-    bending: Tones
+    tones: Tones  # bounce, pitch and bending, one after the other
+    weights: np.ndarray  # (tones, 2): what each tone adds to z (m/s^2) and to the pitch (deg)
 
     @classmethod
     def draw(cls, model: BodyModesModel, rng: np.random.Generator) -> BodyModes:
-        return cls(
-            model,
-            mode_tones(model.bounce, rng),
-            mode_tones(model.pitch, rng),
-            mode_tones(model.bending, rng),
+        bounce, pitch, bending = (
+            mode_tones(m, rng) for m in (model.bounce, model.pitch, model.bending)
         )
+        parts = (bounce, pitch, bending)
+        tones = Tones(
+            *(np.concatenate([getattr(p, f) for p in parts]) for f in ("freq", "amp", "phase"))
+        )
+        n = TONES
+        weights = np.zeros((3 * n, 2))
+        weights[:n, 0] = 1.0  # bounce: vertical
+        weights[2 * n :, 0] = 1.0  # bending: vertical at the board
+        omega = 2.0 * math.pi * pitch.freq
+        weights[n : 2 * n, 0] = -model.lever_m * math.radians(1.0) * omega * omega  # L phi''
+        weights[n : 2 * n, 1] = 1.0  # the pitch angle itself
+        return cls(model, tones, weights)
 
     def speed_factor(self, speed_mps: np.ndarray) -> np.ndarray:
         r = np.abs(np.asarray(speed_mps, dtype=np.float64)) / self.model.reference_speed_mps
@@ -111,13 +119,9 @@ class BodyModes:
     ) -> tuple[np.ndarray, np.ndarray]:
         """(z m/s^2, pitch deg): the board's vertical acceleration from bounce, bending and
         the pitch's lever arm, and the body's pitch angle of the pitch mode."""
-        t = np.asarray(t, dtype=np.float64)
         k = self.speed_factor(speed_mps)
-        z = self.bounce.at(t, rate_hz) + self.bending.at(t, rate_hz)
-        if self.model.lever_m:
-            z += self.model.lever_m * math.radians(1.0) * self.pitch.at(t, rate_hz, order=2)
-        pitch = self.pitch.at(t, rate_hz)
-        return z * k, pitch * k
+        out = self.tones.at(np.asarray(t, dtype=np.float64), rate_hz, self.weights)
+        return out[:, 0] * k, out[:, 1] * k
 
 
 __all__ = [
