@@ -111,6 +111,8 @@ def run(args: argparse.Namespace) -> int:
         sc = sc.with_changes(seed=args.seed)
     if args.calibration_out:
         _write_calibration(sc, args.calibration_out, args.scenario)
+    if sc.second_board is not None:
+        return _two_boards(args, sc, realtime)
     if not realtime:  # files only: the run goes to them chunk by chunk, in bounded memory
         lines, counts = _write_streamed(sc, args.out, args.truth)
         for line in lines:
@@ -124,6 +126,42 @@ def run(args: argparse.Namespace) -> int:
         write_truth_csv(args.truth, sim.truth)
         print(f"wrote truth of {len(sim.truth)} sampling instants to {args.truth}")
     return _play(args, sim)
+
+
+def _two_boards(args: argparse.Namespace, sc: Any, realtime: bool) -> int:
+    """A scenario with [second_board]: both boards on one bus (devices.emulator.two_boards),
+    played on the CAN interface or written as one candump log; the truth is the train's."""
+    from devices.emulator import write_truth_csv
+    from devices.emulator.two_boards import board_b, simulate_bus
+    from devices.writers import write_candump
+
+    if args.pty:
+        raise BenchError(
+            "two boards ([second_board]) share a CAN bus: use --interface/--channel or "
+            "--out FILE.log (a pty carries one board's UART)"
+        )
+    if args.out and Path(args.out).suffix.lower() != ".log":
+        raise BenchError(
+            f"two boards ([second_board]) are written as a candump .log, not {args.out}"
+        )
+    if args.calibration_out:
+        path = Path(args.calibration_out)
+        _write_calibration(board_b(sc), str(path.with_stem(path.stem + "-b")), args.scenario)
+    run = simulate_bus(sc)
+    if args.truth:
+        write_truth_csv(args.truth, run.truth)
+        print(f"wrote truth of {len(run.truth)} sampling instants to {args.truth}")
+    if realtime:
+        return _play(args, run)
+    if args.out:
+        try:
+            write_candump(args.out, run.frames)
+        except OSError as exc:
+            raise BenchError(f"{args.out}: cannot write: {exc.strerror or exc}") from None
+        print(f"wrote {len(run.frames)} frames of two boards to {args.out}")
+        if not args.quiet:
+            print(run.summary())
+    return 0
 
 
 def _write_streamed(sc: Any, out: str | None, truth: str | None) -> tuple[list[str], Any]:

@@ -27,6 +27,7 @@ import numpy as np
 from devices.cpu_placement import live_cpus, pin_thread
 from devices.emulator.scenario import Scenario, load_scenario
 from devices.emulator.simulation import Simulation, UartStream, simulate
+from devices.emulator.two_boards import BusRun, simulate_bus
 from devices.errors import BenchError
 
 if TYPE_CHECKING:
@@ -128,7 +129,7 @@ class CanPlayer(_PacedPlayer):
 
     def __init__(
         self,
-        sim: Simulation,
+        sim: Simulation | BusRun,
         bus: can.BusABC,
         *,
         speed: float = 1.0,
@@ -257,16 +258,16 @@ def _open_virtual(channel: str) -> can.BusABC:
         raise BenchError(f"cannot open virtual CAN channel {channel!r}: {exc}") from None
 
 
-def _as_simulation(scenario: Scenario | Simulation | str | Path) -> Simulation:
-    if isinstance(scenario, Simulation):
+def _as_simulation(scenario: Scenario | Simulation | BusRun | str | Path) -> Simulation | BusRun:
+    if isinstance(scenario, Simulation | BusRun):
         return scenario
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    return simulate(scenario)
+    return simulate_bus(scenario) if scenario.second_board else simulate(scenario)
 
 
 def start_virtual_board(
-    scenario: Scenario | Simulation | str | Path,
+    scenario: Scenario | Simulation | BusRun | str | Path,
     channel_name: str,
     *,
     speed: float = 1.0,
@@ -277,7 +278,8 @@ def start_virtual_board(
     The receiver opens its own ``can.Bus(interface="virtual", channel=channel_name)`` --
     before calling this, or it misses the first frames. Returns the running player (with
     ``start=False`` a ready one: ``begin()`` starts it): it has ``frames_sent``, ``errors``,
-    ``done``, ``progress_s``, ``simulation`` and ``stop()``.
+    ``done``, ``progress_s``, ``simulation`` and ``stop()``. A scenario with
+    ``[second_board]`` plays both boards on the one bus (devices.emulator.two_boards).
     """
     sim = _as_simulation(scenario)
     # python-can's virtual bus is in-process: this board shares the GIL with the bench that

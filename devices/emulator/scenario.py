@@ -263,6 +263,26 @@ class IrregularityModel:
 
 
 @dataclass(frozen=True, slots=True)
+class SecondBoard:
+    """A second board on the same bus and train (devices.emulator.two_boards): its own BASE,
+    sensors, board and random draws; the train's motion and its one odometer are shared
+    (the scenario's board sends SPEED_REF, this one does not)."""
+
+    base_id: int
+    seed: int | None = None  # its own draws (None: the scenario's seed + 1)
+    offset_m: float = 0.0  # its distance ahead (+) of the first board along the train
+    sample_rate_hz: int = DEFAULT_SAMPLE_RATE_HZ
+    channels: tuple[ChannelModel, ChannelModel, ChannelModel] = (
+        ChannelModel(30.0),
+        ChannelModel(0.0),
+        ChannelModel(-30.0),
+    )
+    board: BoardModel = field(default_factory=lambda: BoardModel())
+    counter0: int = 0
+    board_time0_ticks: int = 0
+
+
+@dataclass(frozen=True, slots=True)
 class Fault:
     index: int  # 1-based position in [[faults]]
     kind: str
@@ -311,6 +331,7 @@ class Scenario:
     standstill: StandstillModel = field(default_factory=StandstillModel)
     body_modes: BodyModesModel = field(default_factory=BodyModesModel)
     track_irregularity: IrregularityModel = field(default_factory=IrregularityModel)
+    second_board: SecondBoard | None = None  # two boards on one bus, one odometer
     faults: tuple[Fault, ...] = ()
     source: str = "<defaults>"  # file name for messages
     path: str = ""  # the file it was loaded from ("" when parsed from text)
@@ -595,6 +616,54 @@ def _parse_irregularity(file: str, value: Any) -> IrregularityModel:
     return m
 
 
+def _ranges_overlap(a: int, b: int) -> bool:
+    return abs(a - b) <= 3
+
+
+def _parse_second_board(
+    file: str,
+    value: Any,
+    base: int,
+    rate: int,
+    a: BoardModel,
+    channels: tuple[ChannelModel, ChannelModel, ChannelModel],
+) -> SecondBoard | None:
+    if value is None:
+        return None
+    t = Table(file, "second_board", value)
+    t.require("base_id", "the second board's BASE, e.g. 0x200")
+    b_base = t.integer("base_id", None, 0, 0x7FC)
+    if b_base <= SPEED_REF_ID <= b_base + 3:
+        raise t.error("base_id", f"0x{b_base:X}..0x{b_base + 3:X} would overlap SPEED_REF 0x180")
+    if _ranges_overlap(base, b_base):
+        raise t.error(
+            "base_id", f"0x{b_base:X}..0x{b_base + 3:X} overlaps the first board's 0x{base:X}.."
+        )
+    b_rate = t.integer("sample_rate_hz", rate, 50, 1000)
+    items = t.array("channels")
+    sub = f"{file}: second_board" if file else "second_board"
+    own = _parse_channels(sub, items) if items else channels  # default: the same build
+    board_raw = t.raw("board", None)
+    board = _parse_board(sub, board_raw, b_rate) if board_raw is not None else a
+    load = (a.frame_gap_us * (3 * rate + 10 + 50) + board.frame_gap_us * (3 * b_rate + 10)) / 1e6
+    if load >= 0.95:
+        raise t.error(
+            "sample_rate_hz", f"the two boards at {rate} and {b_rate} Hz need {load:.0%} of the bus"
+        )
+    m = SecondBoard(
+        base_id=b_base,
+        seed=t.integer("seed", None, 0, (1 << 63) - 1) if t.has("seed") else None,
+        offset_m=t.num("offset_m", 0.0, -1000.0, 1000.0),
+        sample_rate_hz=b_rate,
+        channels=own,
+        board=board,
+        counter0=t.integer("counter0", 0, 0, 255),
+        board_time0_ticks=t.integer("board_time0_ticks", 0, 0, 65535),
+    )
+    t.done()
+    return m
+
+
 _STATUS_BITS = {name: bit for bit, name in STATUS_BIT_NAMES.items()}
 
 
@@ -714,6 +783,7 @@ _TOP_KEYS = (
     "standstill",
     "body_modes",
     "track_irregularity",
+    "second_board",
     "faults",
 )
 
@@ -742,6 +812,8 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
     base = top.integer("base_id", DEFAULT_BASE, 0, 0x7FC)
     if base <= SPEED_REF_ID <= base + 3:
         raise top.error("base_id", f"0x{base:X}..0x{base + 3:X} would overlap SPEED_REF 0x180")
+    board = _parse_board(source, top.raw("board", {}), rate)
+    channels = _parse_channels(source, top.array("channels"))
     sc = Scenario(
         seed=seed,
         duration_s=duration,
@@ -760,14 +832,17 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         description=top.text("description", ""),
         track=_parse_track(source, top.array("track")),
         train=_parse_train(source, top.array("train")),
-        channels=_parse_channels(source, top.array("channels")),
-        board=_parse_board(source, top.raw("board", {}), rate),
+        channels=channels,
+        board=board,
         odometer=_parse_odometer(source, top.raw("odometer", {})),
         vibration=_parse_vibration(source, top.raw("vibration", {}), rate),
         body_pitch=_parse_body_pitch(source, top.raw("body_pitch", {})),
         standstill=_parse_standstill(source, top.raw("standstill", {}), rate),
         body_modes=_parse_body_modes(source, top.raw("body_modes", {})),
         track_irregularity=_parse_irregularity(source, top.raw("track_irregularity", {})),
+        second_board=_parse_second_board(
+            source, top.raw("second_board"), base, rate, board, channels
+        ),
         faults=tuple(
             _parse_fault(source, i, item, duration)
             for i, item in enumerate(_bounded(top, "faults", MAX_FAULTS), 1)
