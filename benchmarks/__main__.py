@@ -219,6 +219,8 @@ def _measurement_of(fig: dict[str, Any]) -> str:
         return "live_rate"
     if key.startswith(("replay_process_", "replay_first_step")):
         return "replay_process"
+    if key.startswith("replay_rss_"):  # outputs.measure_memory's figures
+        return "replay_memory"
     if key.startswith(("replay_", "read_", "mcap_", "pipeline_")):
         return "replay"
     if key.startswith("random_"):

@@ -188,6 +188,25 @@ def test_random_figures_are_a_measurement_of_their_own() -> None:
     assert plan[0][:2] == ("random", {"n": 4, "seed": 1000})
 
 
+def test_every_figure_key_names_the_plan_measurement_that_makes_it() -> None:
+    """A partial run keeps the figures of the measurements it did not rerun: each key must
+    map to its own PLAN entry (replay_rss_* were taken for the replay measurement's)."""
+    made_by = {
+        "replay_candump_csv": "replay",
+        "read_mcap": "replay",
+        "replay_rss_1000000": "replay_memory",
+        "replay_rss_growth": "replay_memory",
+        "replay_process_csv": "replay_process",
+        "replay_first_step": "replay_process",
+        "live_max_rate_strict": "live_rate",
+        "fleet_speedup": "fleet",
+    }
+    plan = {name for name, *_ in harness.PLAN}
+    for key, name in made_by.items():
+        assert harness._measurement_of({"key": key}) == name, key
+        assert name in plan, name
+
+
 def test_calibration_figures_count_runs_within_and_honest() -> None:
     from benchmarks.calibration import figures as calibration_figures
 
