@@ -87,7 +87,9 @@ def _checked(key: str, value: Any, where: str, folder: Path | None) -> Any:
 
 
 def _file_layer(path: Path, shown: str) -> dict[str, Setting]:
-    if not path.is_file():
+    """A defaults file's settings ({} when there is none). A FIFO, a device or a folder by
+    that name is an error, never read (a FIFO would wait forever) nor passed over unsaid."""
+    if not path.exists():
         return {}
     data = parse_toml(read_text_file(path, "defaults"), shown)
     unknown = sorted(set(data) - set(KEYS))

@@ -65,6 +65,7 @@ The test below fails when a case names a test that no longer exists.
 15a a FIFO or `/dev/zero` as the log replayed
     -> test_hostile_inputs::test_fifo_log_is_refused
     -> test_hostile_inputs::test_dev_zero_log_is_refused
+    -> test_hostile_paths::test_a_defaults_file_that_is_not_a_file_is_an_error
 15b a FIFO or `/dev/zero` given to `bench log info`/`log export` (an MCAP opener of its own)
     -> test_hostile_paths::test_an_mcap_log_that_is_a_fifo_is_refused
     -> test_hostile_paths::test_log_info_and_export_of_a_device_are_refused

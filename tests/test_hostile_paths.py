@@ -360,3 +360,14 @@ def test_a_reference_table_that_is_a_fifo_is_named_for_what_it_is(work, tmp_path
     argv = ["calibrate", str(work["mcap"]), "--reference", str(pipe), "--out", "cal.toml"]
     _refused(guarded(argv, tmp_path), str(pipe))
     assert not (tmp_path / "cal.toml").exists()
+
+
+@pytest.mark.parametrize("what", ["fifo", "folder"])
+def test_a_defaults_file_that_is_not_a_file_is_an_error(work, tmp_path, what):
+    """A bench.toml that was a FIFO or a folder was passed over without a word."""
+    local = tmp_path / "bench.toml"
+    os.mkfifo(local) if what == "fifo" else local.mkdir()
+    r = guarded(["replay", str(work["log"]), "--csv", os.devnull, "-q"], tmp_path)
+    line = one_error(r.returncode, r.stderr)
+    assert str(local) in line and "cannot read defaults" in line, line
+    assert ("FIFO" if what == "fifo" else "folder") in line
