@@ -78,6 +78,7 @@ The test below fails when a case names a test that no longer exists.
 17a per client a bounded outbox that drops and counts, a send timeout that lets it go
     -> test_hostile_viewer::test_the_front_drops_and_counts_for_a_viewer_that_never_reads
     -> test_hostile_viewer::test_a_run_says_what_a_stalled_viewer_cost
+    -> test_hostile_viewer::test_a_viewer_on_a_slow_link_is_dropped_for_not_disconnected
     -> test_hostile_viewer::test_a_stalled_client_of_the_sdks_own_port_does_not_hold_the_close
 17b a peer that opens connections and says nothing, or very many of them
     -> test_hostile_viewer::test_a_connection_that_never_sends_its_request_is_closed

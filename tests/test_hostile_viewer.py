@@ -299,6 +299,43 @@ def test_the_front_drops_and_counts_for_a_viewer_that_never_reads(monkeypatch):
     assert kept < (n - dropped) * (size + 13 + 4)  # never more than was not dropped
 
 
+def test_a_viewer_on_a_slow_link_is_dropped_for_not_disconnected(monkeypatch):
+    """A viewer that keeps taking bytes, slower than the stream, loses messages (counted)
+    but stays connected: only one that takes nothing for SEND_TIMEOUT_S is let go. Reading
+    4 KiB every 50 ms (~80 kB/s), what the front writes at once (its 64 KiB outbox) takes
+    longer than the 0.5 s send timeout to pass below the transport's high-water mark: the
+    front cut it at the first timeout."""
+    from bench.mcaplog import foxglove_front as front
+    from bench.mcaplog.foxglove_ws import WsChannels
+
+    monkeypatch.setattr(front, "OUTBOX_BYTES", 64 * 1024)
+    monkeypatch.setattr(front, "SEND_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(front, "SEND_BUFFER_BYTES", 32 * 1024)
+    ws = WsChannels(port=0)
+    slow = None
+    try:
+        sid = ws.add_schema("bench.Raw", "jsonschema", b'{"type": "object"}')
+        cid = ws.add_channel("/can/frames", "json", sid)
+        slow = StalledClient(ws.port).subscribe("/can/frames")
+        time.sleep(0.5)  # the SDK takes the subscription (a settle, not a bound)
+        n = 1500  # 1.5 MB
+        ws.add_messages(cid, list(range(1, n + 1)), [b"{}" + b" " * 998] * n, [0] * n)
+        slow.sock.settimeout(2.0)  # quiet for 2 s: everything that was kept has come
+        got = 0
+        with contextlib.suppress(TimeoutError, ConnectionResetError):
+            while data := slow.sock.recv(4096):
+                got += len(data)
+                time.sleep(0.05)
+        counts = ws.front.counts
+    finally:
+        ws.abort()
+        if slow is not None:
+            slow.close()
+    assert counts.clients_cut == 0, (counts, got)
+    assert counts.messages_dropped > 0
+    assert got > 2 * 64 * 1024  # more than one outbox reached it, at its pace
+
+
 def test_a_stalled_client_of_the_sdks_own_port_does_not_hold_the_close():
     """The SDK's ``stop`` waits for a stalled client forever; a local process can reach the
     SDK's own port (behind the front) and stall there: closing the stream still ends."""

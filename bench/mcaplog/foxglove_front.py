@@ -301,10 +301,7 @@ class _Outbox:
                     size += len(batch[-1])
                 self.queued -= size
                 dst.write(b"".join(batch))
-                try:
-                    await asyncio.wait_for(dst.drain(), SEND_TIMEOUT_S)
-                except TimeoutError:
-                    raise _SlowClient from None
+                await _drain(dst)
             if self.over:
                 raise _SlowClient
             if self.ended:
@@ -312,6 +309,23 @@ class _Outbox:
                     if dst.can_write_eof():
                         dst.write_eof()
                 return
+
+
+async def _drain(dst: asyncio.StreamWriter) -> None:
+    """Wait until the client has taken what was written (below the transport's high-water
+    mark); :class:`_SlowClient` when it took nothing at all for ``SEND_TIMEOUT_S``. A client
+    on a slow link that keeps taking bytes is waited for (what it cannot take meanwhile is
+    dropped from its outbox), never cut."""
+    left = dst.transport.get_write_buffer_size()
+    while True:
+        try:
+            await asyncio.wait_for(dst.drain(), SEND_TIMEOUT_S)
+            return
+        except TimeoutError:
+            now = dst.transport.get_write_buffer_size()
+            if now >= left:
+                raise _SlowClient from None
+            left = now  # it took some: wait on
 
 
 class _SlowClient(Exception):
