@@ -106,7 +106,9 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_records::test_a_report_without_plots_keeps_no_plots_of_an_earlier_run
 
 What each command does with a clashing path, a changing file and a slow viewer:
-docs/DEVICES.md ("Files: inputs and outputs") and docs/MCAP.md (the live stream).
+docs/DEVICES.md ("A command's files: clashes, files that change, viewers that stall", one
+row per command), docs/MCAP.md (the live stream: "A viewer that stalls never holds the
+run") and docs/TUI.md (bench tui and demo).
 """
 
 from __future__ import annotations
