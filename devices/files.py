@@ -227,6 +227,9 @@ class CanLogReaderSource(DiskFileSource):
             self.frames += len(msgs)
             kind = "truncated" if isinstance(exc, _TRUNCATION_ERRORS) else "parse_error"
             detail = f"{self.path}: reading stopped after {self.frames} frames: {one_line(exc)}"
+            declared = getattr(reader, "object_count", 0)  # a BLF header's count: the loss
+            if isinstance(declared, int) and declared > self.frames:
+                detail += f" (its header declares {declared} objects)"
             yield SourceBatch(
                 frames_from_messages(msgs), [], [SourceNotice(math.nan, kind, detail)]
             )

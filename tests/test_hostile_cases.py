@@ -44,6 +44,8 @@ The test below fails when a case names a test that no longer exists.
     -> test_hostile_loss::test_a_foreign_channel_on_can_frames_costs_no_frame_and_is_warned
 10  BLF first object size 0xFFFFFFF0: 2 730 of 3 300, no warning
     -> test_hostile_loss::test_blf_whose_first_object_size_is_absurd_loses_nothing_and_says_so
+10a a BLF container whose compressed data is damaged: the warning gives the header's count
+    -> test_hostile_loss::test_blf_whose_second_container_is_damaged_says_what_the_header_declares
 11  UTF-8 BOM before `.trc` (every frame lost), `.asc`, candump (line 1 lost)
     -> test_hostile_loss::test_a_bom_before_a_text_log_loses_no_frame
 11a BOM in TOML configs, scenarios, plans, steps files, tilt tables

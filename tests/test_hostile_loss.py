@@ -127,6 +127,28 @@ def test_blf_whose_first_object_size_is_absurd_loses_nothing_and_says_so(tmp_pat
     assert f"object at byte {header_size} claims {0xFFFFFFF0} bytes" in err
 
 
+def test_blf_whose_second_container_is_damaged_says_what_the_header_declares(
+    tmp_path, capsys, frames
+):
+    """Reading stopped at the damage with a count of what was replayed, not of the file."""
+    from devices.writers import write_with_can_logger
+
+    good = tmp_path / "good.blf"
+    write_with_can_logger(good, frames)
+    raw = bytearray(good.read_bytes())
+    first = struct.unpack_from("<I", raw, 4)[0]  # the header's size: the first container
+    second = first + struct.unpack_from("<I", raw, first + 8)[0]
+    second += second % 4  # objects are padded to 4 bytes
+    assert raw[second : second + 4] == b"LOBJ"
+    raw[second + 132 : second + 182] = bytes(b ^ 0xFF for b in raw[second + 132 : second + 182])
+    bad = tmp_path / "bad.blf"
+    bad.write_bytes(bytes(raw))
+    code, n, err = _replayed(capsys, bad)
+    assert code == 0 and 0 < int(n) < N, err
+    assert f"reading stopped after {n} frames" in err, err
+    assert f"(its header declares {N} objects)" in err, err
+
+
 # -- a UTF-8 byte-order mark -----------------------------------------------------------------
 BOM = b"\xef\xbb\xbf"
 
