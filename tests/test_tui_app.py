@@ -291,3 +291,35 @@ def test_keys_are_in_the_footer_and_the_command_palette() -> None:
 
     asyncio.run(run())
     session.stop()
+
+
+def test_a_sigterm_before_the_screen_is_up_quits_once_it_is(tmp_path: Path) -> None:
+    """The run and its log start before the screen; a SIGTERM in between was lost where the
+    process inherited it as ignored (`nohup`, .ci/run under nohup hung 120 s on SIGHUP) or
+    ended the process at once. It is kept, and the screen quits like `q` when it comes up."""
+    import os
+    import signal
+
+    mcap_writer = pytest.importorskip("bench.mcaplog.sink")
+    frames = make_frames(200)
+    sink = mcap_writer.McapSink(tmp_path / "run.mcap", Config(), {"test": "tui"})
+    session, _ = make_session(frames, first=sink)
+    app = BenchApp(session, poll_hz=10, handle_signals=True)
+    held = app.hold_signals()
+    try:
+        session.start()
+        os.kill(os.getpid(), signal.SIGTERM)  # before the screen: kept, not acted on
+        assert app.early_signals == [signal.SIGTERM]
+
+        async def run() -> None:
+            async with app.run_test(size=SIZE) as pilot:
+                await wait_for(pilot, lambda: not app.is_running, timeout=30)
+
+        asyncio.run(run())
+    finally:
+        for sig, handler in held.items():
+            signal.signal(sig, handler)
+        session.stop()
+    assert app.return_code == 0 and app.quitting
+    assert session.runner.finished.is_set()
+    assert sink.frames_logged == len(frames)

@@ -17,7 +17,7 @@ import threading
 import time
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from rich.text import Text
@@ -57,6 +57,8 @@ TOLERANCE_STEPS = (0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0)
 WIDE_COLUMNS = 140
 MIN_SIZE = (100, 30)
 """Below this the panels would be cropped: the screen says so instead."""
+QUIT_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+"""Signals that quit like ``q`` (the log is finished): kill and systemd, a closed terminal."""
 REPLAY_ACTIONS = {"play_pause", "speed", "step", "next_failure"}
 KEY_HELP = {
     "quit": "quit: stop, finish the MCAP log, leave",
@@ -127,6 +129,7 @@ class BenchApp(App[int]):
         self.notices = list(notices)  # shown when the screen comes up (the calibration)
         self.handle_signals = handle_signals
         self.hung_up = False
+        self.early_signals: list[int] = []  # received before the screen could act on them
         self.session = session
         self.poll_hz = poll_hz
         self.window_s = window_s
@@ -183,9 +186,22 @@ class BenchApp(App[int]):
         """SIGTERM, and SIGHUP when the terminal window is closed, quit like q: the MCAP file
         is finished instead of being cut off mid-chunk."""
         loop = asyncio.get_running_loop()
-        for sig in (signal.SIGTERM, signal.SIGHUP):
+        for sig in QUIT_SIGNALS:
             with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                 loop.add_signal_handler(sig, self._on_signal, sig)
+        if self.early_signals:  # one came while the screen was being built
+            self._on_signal(self.early_signals[0])
+
+    def hold_signals(self) -> dict[int, Any]:
+        """Until the screen is up, keep SIGTERM and SIGHUP for it: the run (and its log) may
+        start before the screen does, and a signal in between would otherwise end the process
+        at once, or be lost where it is inherited as ignored (under ``nohup``). Returns the
+        handlers it replaced."""
+
+        def keep(signum: int, frame: Any) -> None:
+            self.early_signals.append(signum)
+
+        return {sig: signal.signal(sig, keep) for sig in QUIT_SIGNALS}
 
     def _on_signal(self, sig: int) -> None:
         self.hung_up = self.hung_up or sig == signal.SIGHUP

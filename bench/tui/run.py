@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -16,8 +17,13 @@ def run_tui(session: SessionLike, **app_kwargs: Any) -> int:
         from bench.tui.replay_app import create_app
 
         app = create_app(session, handle_signals=True, **app_kwargs)
-        session.start()
-        code = app.run()
+        held = app.hold_signals()  # until the screen is up; it quits on one that came
+        try:
+            session.start()
+            code = app.run()
+        finally:
+            for sig, handler in held.items():
+                signal.signal(sig, handler)
     finally:
         session.stop()
     return 1 if session.error else int(code or 0)
