@@ -19,11 +19,9 @@ import pytest
 from bench.acceptance.plan import parse_plan
 from bench.acceptance.runner import Options, Stopped, StopRequest, run_plan
 from bench.commands.accept import stopped_by_signals
+from tests.test_hostile_records import PLAN as RECORDS_PLAN
 
-PLAN = (
-    '[plan]\ntitle = "stop"\nexpect = "pass"\n[scenario]\nduration_s = 2.0\n'
-    '[[checks]]\nkind = "no_frame_loss"\n'
-)
+PLAN = RECORDS_PLAN.format(d=2.0)
 
 
 class SignalledWhileFinalised:

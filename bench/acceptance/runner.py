@@ -315,42 +315,40 @@ def _run_live(
         config,
         {"acceptance_plan": plan.name, "acceptance_mode": mode, "command": opts.command},
     )
+    collector = Collector()
+    n_ref = int(sim.scenario.counter0) if sim is not None else None
+    rate = float(sim.scenario.sample_rate_hz) if sim is not None else float(config.sample_rate_hz)
+
+    def run_time() -> float | None:
+        if collector.last_n is None:
+            return None
+        ref = n_ref if n_ref is not None else collector.first_n
+        assert ref is not None  # first_n is set with last_n
+        return (collector.last_n - ref) / rate
+
+    def wait_until(t_s: float, what: str) -> None:
+        while True:
+            opts.stop.check()
+            now = run_time()
+            if now is not None and now >= t_s:
+                return
+            if player is not None and player.done and time.monotonic() - collector.updated > 1:
+                raise BenchError(f"the virtual board finished before {what} ({t_s:g} s)")
+            if time.monotonic() - collector.updated > SILENCE_S:
+                raise BenchError(f"no sample from the board for {SILENCE_S:g} s ({what})")
+            if runner.error:
+                raise BenchError(runner.error)
+            time.sleep(0.02)
+
+    windows: list[StepWindow] = []
+    unattended = opts.yes or opts.answers is not None
+    prev_end = 0.0
     mcap_path = opts.out_dir / "run.mcap"
     sink = McapSink(mcap_path, config, meta, _attachments(plan, config))
     started = False
     try:  # from here a signal's Stopped stops the runner, the board and the log
-        collector = Collector()
         runner = LiveRunner(setup.source, config, [sink, collector], description=setup.description)
         runner.recording = sink
-        n_ref = int(sim.scenario.counter0) if sim is not None else None
-        rate = (
-            float(sim.scenario.sample_rate_hz) if sim is not None else float(config.sample_rate_hz)
-        )
-
-        def run_time() -> float | None:
-            if collector.last_n is None:
-                return None
-            ref = n_ref if n_ref is not None else collector.first_n
-            assert ref is not None  # first_n is set with last_n
-            return (collector.last_n - ref) / rate
-
-        def wait_until(t_s: float, what: str) -> None:
-            while True:
-                opts.stop.check()
-                now = run_time()
-                if now is not None and now >= t_s:
-                    return
-                if player is not None and player.done and time.monotonic() - collector.updated > 1:
-                    raise BenchError(f"the virtual board finished before {what} ({t_s:g} s)")
-                if time.monotonic() - collector.updated > SILENCE_S:
-                    raise BenchError(f"no sample from the board for {SILENCE_S:g} s ({what})")
-                if runner.error:
-                    raise BenchError(runner.error)
-                time.sleep(0.02)
-
-        windows: list[StepWindow] = []
-        unattended = opts.yes or opts.answers is not None
-        prev_end = 0.0
         runner.start()
         started = True
         setup.start_board()
