@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from bench.errors import BenchError
+from devices import base as base_module
 from devices import bus as bus_module
 from devices.base import SourceBatch
 from devices.bus import CanBusSource, frames_from_messages, messages_from_frames
@@ -171,27 +172,47 @@ def test_prebuilt_bus_disconnect_is_reported_once_and_never_raises(channel: str)
     src.close()
 
 
-def test_backoff_grows_while_the_bus_stays_away(
+class FakeTime:
+    """devices.base's clock: ``sleep`` advances ``monotonic`` exactly, without waiting."""
+
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.slept: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.now += seconds
+
+
+def test_backoff_doubles_up_to_its_cap_while_the_bus_stays_away(
     channel: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """Reconnector (devices/base.py): the first attempt ``backoff_initial`` after the drop,
+    each failure doubles the wait, up to ``backoff_max``; no read sleeps past its timeout."""
+    clock = FakeTime()
+    monkeypatch.setattr(base_module, "time", clock)
     src = CanBusSource("virtual", channel, backoff_initial=0.01, backoff_max=0.04)
     attempts = []
 
     def failing_open(config: dict) -> can.BusABC:
-        attempts.append(time.monotonic())
+        attempts.append(clock.now)
         raise BenchError("cannot open can bus: gone")
 
     try:
         src.bus.shutdown()
-        src.read(0.0)
+        dropped_at = clock.now
+        assert [n.kind for n in src.read(0.0).notices] == ["disconnect"]
         monkeypatch.setattr(bus_module, "open_bus", failing_open)
-        deadline = time.monotonic() + 0.6
-        while time.monotonic() < deadline:
+        for _ in range(30):
             assert not src.read(0.02).notices
-        gaps = np.diff(attempts)
-        assert len(attempts) >= 3
-        assert gaps[-1] >= 0.035  # doubled up to the cap...
-        assert gaps.max() <= 0.04 + 0.12  # ...and no further (uncapped would reach 0.32)
+        assert max(clock.slept) <= 0.02
+        gaps = np.diff([dropped_at, *attempts])
+        # 0.01 after the drop, then 0.02, then 0.04 (the cap) however long it stays away
+        assert gaps[:6] == pytest.approx([0.01, 0.02, 0.04, 0.04, 0.04, 0.04])
+        assert len(attempts) >= 10 and gaps.max() == pytest.approx(0.04)
     finally:
         src.close()
 

@@ -1,14 +1,15 @@
-"""The bench's own estimator (METHOD.md section 5; design notes in docs/ESTIMATOR.md).
+"""The bench's own estimator (METHOD.md section 5; the model in docs/ESTIMATOR.md).
 
 Per sample: exclude faulty channels (missing, status-flagged, stuck, singled out by the
 residual; exclusions held with hysteresis), solve the specific force (u, w) by least
-squares from the channels left, take the reference acceleration a_ref from SPEED_REF,
-and give the signed gradient 1000 * tan(atan2(u - a_ref, w)) = 1000 * (u - a_ref) / w.
+squares from the channels left, and feed u, w and the SPEED_REF frames to the joint filter
+(:mod:`bench.fusion.joint`), whose state s = g sin(alpha) gives the signed gradient and its
+sigma. a_ref, the odometer's own acceleration, serves the residual isolation only.
 
 Its error from an error e in one channel grows like e/g, where the reference method's
-grows like sqrt(e/g) near level track, and it keeps the sign. Pure numpy, no I/O; the
-same stream gives bit-identical float64 output however it is cut into batches (each
-stage carries its state and uses element-wise or exact operations only).
+grows like sqrt(e/g) near level track, and it keeps the sign. No I/O; the same stream
+gives bit-identical float64 output however it is cut into batches: each stage carries its
+state and uses element-wise or exact operations only, and the filter is one compiled loop.
 """
 
 from __future__ import annotations
