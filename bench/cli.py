@@ -1,4 +1,9 @@
-"""The `bench` command line: discovers subcommands in :mod:`bench.commands`."""
+"""The `bench` command line: discovers subcommands in :mod:`bench.commands`.
+
+Only the command being run is imported (a module per command, named as the command):
+importing them all would cost every start the live path's python-can, rich tables and
+more (a sixth of a whole `bench replay`); ``bench --help``, completion and anything
+unexpected still build the whole tree."""
 
 from __future__ import annotations
 
@@ -21,7 +26,31 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_names() -> list[str]:
+    """The modules of :mod:`bench.commands` (found without importing them)."""
+    return sorted(m.name for m in pkgutil.iter_modules(commands.__path__))
+
+
+TOP_FLAGS = ("--print-config",)
+"""The top-level options that may come before a command and leave its parser enough."""
+
+
+def named_command(argv: Sequence[str]) -> str | None:
+    """The command ``argv`` runs, when its parser alone can parse it; None when the whole
+    tree is needed (no command, ``--help``, ``--completion``, an abbreviated option, an
+    unknown name: argparse's messages must list every choice)."""
+    for arg in argv:
+        if arg in TOP_FLAGS:
+            continue
+        if arg.startswith("-"):
+            return None
+        return arg if arg in command_names() else None
+    return None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of every command, or of ``command`` alone (when its module registers it;
+    else of every command)."""
     parser = OneLineParser(
         prog="bench", description="Hardware-in-the-loop bench for the ACB-3 gradient board."
     )
@@ -40,17 +69,27 @@ def build_parser() -> argparse.ArgumentParser:
         '(e.g. eval "$(bench --completion bash)" in ~/.bashrc)',
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        module = importlib.import_module(f"{commands.__name__}.{info.name}")
-        register = getattr(module, "register", None)
-        if register is not None:
-            register(sub)
+    if command is not None:
+        _register(sub, command)
+        if command in sub.choices:
+            return parser
+        return build_parser()  # a helper module, not a command: the whole tree's message
+    for name in command_names():
+        _register(sub, name)
     return parser
+
+
+def _register(sub: argparse._SubParsersAction, name: str) -> None:
+    module = importlib.import_module(f"{commands.__name__}.{name}")
+    register = getattr(module, "register", None)
+    if register is not None:
+        register(sub)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     try:
-        parser = build_parser()
+        argv = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(named_command(argv))
         args = parser.parse_args(argv)
         if args.completion:
             import shtab

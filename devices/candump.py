@@ -26,15 +26,17 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import can
 import numpy as np
 
 from devices.base import DiskFileSource, SourceBatch, SourceNotice
-from devices.bus import frames_from_messages, one_line
 from devices.paths import cannot_read
 from protocol.frames import FRAME_DTYPE, empty_frames
 from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_FD, FLAG_REMOTE
+
+if TYPE_CHECKING:  # python-can only for the per-line fallback: a replay's start need not wait
+    import can
 
 CHUNK_BYTES = 1 << 20
 """Bytes parsed per step: large enough to amortise numpy overhead, small enough for memory."""
@@ -235,6 +237,8 @@ def message_from_line(line: str) -> can.Message | None:
     Kept line-for-line equivalent so the fallback path gives python-can's answer for
     anything the fast path leaves out; raises ValueError/IndexError where python-can would.
     """
+    import can
+
     temp = line.strip()
     if not temp:
         return None
@@ -291,6 +295,8 @@ def _snippet(raw: bytes) -> str:
 def _slow_line(raw: bytes) -> tuple[list[can.Message], str | None]:
     """Per-line parse of one physical line; python-can reads text with universal newlines,
     so a stray CR splits it into several lines there too."""
+    from devices.bus import one_line
+
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -389,6 +395,8 @@ def parse_candump_bytes(buf: bytes, first_line: int = 1) -> ParsedChunk:
         else:
             msgs, error = _slow_line(raw)
         if msgs:
+            from devices.bus import frames_from_messages
+
             frames = frames_from_messages(msgs)
             out[r] = frames[0]
             have[r] = True
