@@ -12,12 +12,10 @@ import numpy as np
 import pytest
 
 from bench.config import Config
-from bench.fusion.estimator import SCALAR_MAX, Estimator
 from bench.fusion.isolation import ResidualIsolator
 from bench.fusion.least_squares import geometry
 from bench.pipeline.steps import Pipeline
 from bench.records.events import EventKind
-from bench.records.samples import usable
 from devices.base import SourceBatch
 from devices.emulator import scenario_from_dict, simulate
 
@@ -87,41 +85,6 @@ def test_random_batches_give_bit_identical_results(receive_times: str) -> None:
     assert np.isnan(whole["a_ref"]).any() and (whole["a_ref"] == 0.0).any()
 
 
-def test_scalar_and_vector_paths_are_twins() -> None:
-    """Batches up to SCALAR_MAX samples take the scalar path, longer ones the vectorised one;
-    pushing the same samples either way must give the same bytes."""
-    sim = simulate(scenario_from_dict(FAULTY))
-    pipe = Pipeline(Config())
-    steps = [pipe.process(SourceBatch(sim.frames)), pipe.finish()]
-    samples = np.concatenate([s.samples for s in steps])
-    speeds = np.concatenate([s.speed for s in steps])
-    config = Config()
-    scale = np.array([c.scale for c in config.channels])
-    acc = samples["code"].astype(np.float64) * scale
-    ok = usable(samples)
-    # speed frames go with the push of the first sample that arrived after them
-    owner = np.searchsorted(samples["seq"], speeds["seq"])
-
-    def push_all(bounds: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        est = Estimator(config)
-        outs, evs = [], []
-        for lo, hi in itertools.pairwise(bounds):
-            sp = speeds[(owner >= lo) & (owner < hi)]
-            out, ev = est.push(samples[lo:hi], acc[lo:hi], ok[lo:hi], sp)
-            outs.append(out)
-            evs.append(ev)
-        return np.concatenate(outs), np.concatenate(evs)
-
-    n = len(samples)
-    vector, vector_ev = push_all([0, n])
-    rng = np.random.default_rng(3)
-    cuts = np.cumsum(rng.integers(1, SCALAR_MAX + 1, size=n))
-    scalar, scalar_ev = push_all([0, *cuts[cuts < n].tolist(), n])
-    assert vector.tobytes() == scalar.tobytes()
-    assert vector_ev.tobytes() == scalar_ev.tobytes()
-    assert len(vector_ev) >= 4
-
-
 def test_stuck_detector_remembers_channels_across_a_batch_ending_with_them_missing():
     """Regression: a batch ending on a sample without ch1/ch3 must not make their return
     look like a first appearance (a 'change') in the next batch."""
@@ -142,9 +105,9 @@ def test_stuck_detector_remembers_channels_across_a_batch_ending_with_them_missi
 
 
 @pytest.mark.parametrize("window", [1, 3, 50])
-def test_residual_isolator_push_and_step_agree_however_the_stream_is_cut(window: int) -> None:
+def test_residual_isolator_gives_the_same_bits_however_the_stream_is_cut(window: int) -> None:
     """Windows of one sample, shorter than a push, longer than several: one push of all,
-    against pushes and steps (the live twin) taking turns on random pieces."""
+    against pushes of random pieces, live-sized (1-3 samples) and longer."""
     config = Config()
     angles = np.array(config.angles_rad)
     rng = np.random.default_rng(window)
@@ -163,16 +126,11 @@ def test_residual_isolator_push_and_step_agree_however_the_stream_is_cut(window:
     assert set(whole_single[200:400].tolist()) >= {1}
     iso = isolator()
     residual, single = [], []
-    cuts = np.cumsum(rng.integers(1, 2 * window + 4, n))
+    live = rng.random(n) < 0.5  # half the pieces live-sized, the others up to two windows
+    cuts = np.cumsum(np.where(live, rng.integers(1, 4, n), rng.integers(1, 2 * window + 4, n)))
     for lo, hi in itertools.pairwise([0, *cuts[cuts < n].tolist(), n]):
-        if hi - lo <= 3:
-            for i in range(lo, hi):
-                r, s = iso.step(tuple(acc_t[:, i].tolist()), bool(cand[i]), float(a_ref[i]))
-                residual.append(r)
-                single.append(s)
-        else:
-            r, s = iso.push(acc_t[:, lo:hi], cand[lo:hi], a_ref[lo:hi])
-            residual += r.tolist()
-            single += s.tolist()
+        r, s = iso.push(acc_t[:, lo:hi], cand[lo:hi], a_ref[lo:hi])
+        residual += r.tolist()
+        single += s.tolist()
     assert np.array(residual).tobytes() == whole_residual.tobytes()
     assert single == whole_single.tolist()

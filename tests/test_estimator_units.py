@@ -188,7 +188,7 @@ def test_latch_holds_an_exclusion_until_healthy_for_recover_ticks() -> None:
     assert events["value"][0] == Reason.STUCK
 
 
-def test_latch_events_come_in_sample_then_channel_order_from_push_and_step() -> None:
+def test_latch_events_come_in_sample_then_channel_order_whole_or_a_sample_at_a_time() -> None:
     ticks = np.arange(0, 500, 50)
     reason = np.zeros((3, len(ticks)), dtype=np.int64)  # channel-major (3, N)
     reason[2, 3] = Reason.STATUS  # tick 150: ch3 and ch1 at once
@@ -209,9 +209,12 @@ def test_latch_events_come_in_sample_then_channel_order_from_push_and_step() -> 
     assert events[["n", "kind", "channel", "value"]].tolist() == expected
     latch = ExclusionLatch(recover_ticks=100)
     stepped = []
-    for i, tk in enumerate(ticks.tolist()):
-        stepped += latch.step(tk, tk / 1e4, i, reason[:, i].tolist())[1]
-    assert [(e[3], e[1], e[2], e[4]) for e in stepped] == expected
+    for i in range(len(ticks)):  # live-sized pushes: the same events, in the same order
+        sl = slice(i, i + 1)
+        stepped.extend(
+            latch.push(ticks[sl], ticks[sl] / 1e4, np.arange(i, i + 1), reason[:, sl])[1]
+        )
+    assert [(e["n"], e["kind"], e["channel"], e["value"]) for e in stepped] == expected
 
 
 # --------------------------------------------------------------------------- settings

@@ -14,7 +14,7 @@ state and uses element-wise or exact operations only, and the filter is one comp
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,18 +25,15 @@ from bench.fusion.isolation import (
     ResidualIsolator,
     StuckDetector,
     carry_named,
-    carry_named_one,
 )
 from bench.fusion.joint import JointFilter
 from bench.fusion.least_squares import (
     FULL,
     geometry,
     magnitude_gradient,
-    magnitude_gradient_one,
     mask_code,
     solve_channels,
     solve_full,
-    solve_one,
 )
 from bench.fusion.speed_ref import ReferenceAcceleration
 from bench.records.events import EVENT_DTYPE
@@ -61,35 +58,14 @@ ESTIMATE_DTYPE = np.dtype(
     ]
 )
 
-EXCLUDED_OF_MASK = (1, 2, 1, 3, 1, 2, 1, 0)
+_EXCLUDED_OF_MASK = np.array((1, 2, 1, 3, 1, 2, 1, 0), dtype=np.uint8)
 """Channel reported as excluded, by mask of channels used: the one left out of a pair,
 the lowest unused one when fewer than two remain, 0 with all three."""
-_EXCLUDED_OF_MASK = np.array(EXCLUDED_OF_MASK, dtype=np.uint8)
 _RESIDUAL, _STUCK, _STATUS = int(Reason.RESIDUAL), int(Reason.STUCK), int(Reason.STATUS)
-_NO_EVENTS = np.zeros(0, dtype=EVENT_DTYPE)
-SCALAR_MAX = 16
-"""Batches up to this many samples take the scalar path (live runs: the fixed cost of
-numpy calls would dominate); longer ones the vectorised path. Same results either way."""
 
 
 def _ticks(seconds: float) -> int:
     return max(round(seconds / TICK_S), 1)
-
-
-_NO_REASON = (0, 0, 0)
-
-
-def _reason(single: int, stuck: list[bool], present: list[bool], ok: list[bool]) -> list[int]:
-    """Scalar twin of :func:`_reasons` for one sample."""
-    reason = [0, 0, 0]
-    if single >= 0:
-        reason[single] = _RESIDUAL
-    for k in range(3):
-        if stuck[k]:
-            reason[k] = _STUCK
-        if present[k] and not ok[k]:
-            reason[k] = _STATUS
-    return reason
 
 
 def _reasons(single: np.ndarray, stuck: np.ndarray, status: np.ndarray) -> np.ndarray:
@@ -131,22 +107,10 @@ class Estimator:
         acc: (N, 3) calibrated m/s^2 of every channel; usable: (N, 3) present and status OK;
         speeds: SPEED_REF records (SPEED_DTYPE) of this pipeline step, arrival order.
         """
-        self.buffer_speeds(speeds)
+        self.a_ref.buffer(speeds)
         n = len(samples)
         if n == 0:
             return np.zeros(0, dtype=ESTIMATE_DTYPE), np.zeros(0, dtype=EVENT_DTYPE)
-        if n <= SCALAR_MAX:
-            return self._push_scalar(samples, acc, usable)
-        return self._push_vector(samples, acc, usable)
-
-    def buffer_speeds(self, speeds: np.ndarray) -> None:
-        """Keep this step's SPEED_REF records for the reference acceleration."""
-        self.a_ref.buffer(speeds)
-
-    def _push_vector(
-        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        n = len(samples)
         a_ref = self.a_ref.push(samples)
         ticks = np.ascontiguousarray(samples["ticks"])
         # channel-major (3, N) and contiguous from here on: one copy each, then every
@@ -203,165 +167,31 @@ class Estimator:
         np.copyto(out, 1, where=new[0])
         return out
 
-    def _push_scalar(
-        self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Twin of :meth:`_push_vector`, one sample at a time in Python floats."""
-        rows, events = self.push_rows(
-            samples["ticks"].tolist(),
-            samples["t"].tolist(),
-            samples["seq"].tolist(),
-            samples["n"].tolist(),
-            samples["code"].tolist(),
-            samples["present"].tolist(),
-            acc.tolist(),
-            usable.tolist(),
-        )
-        out = np.array(rows, dtype=ESTIMATE_DTYPE)
-        return out, np.array(events, dtype=EVENT_DTYPE) if events else _NO_EVENTS
-
-    def push_rows(
-        self,
-        ticks_l: list[int],
-        t_l: list[float],
-        seq_l: list[int],
-        n_l: list[int],
-        code_l: list[list[int]],
-        present_l: list[list[bool]],
-        acc_l: list[list[float]],
-        usable_l: list[list[bool]],
-    ) -> tuple[list[tuple], list[tuple]]:
-        """The scalar path on Python lists (the pipeline's own scalar step calls it, after
-        :meth:`buffer_speeds`): ESTIMATE_DTYPE rows as tuples, EVENT_DTYPE rows as tuples."""
-        rows = []
-        events: list[tuple] = []
-        geo, g = self.geo, self.g
-        a_ref_step, stuck_step = self.a_ref.step, self.stuck.step
-        isolate, latch = self.isolator.step, self.latch.step
-        applied = self.a_ref.rows
-        applied.clear()
-        anchors: list[int] = []
-        u_l: list[float] = []
-        w_l: list[float] = []
-        mask_l: list[int] = []
-        res_l: list[float] = []
-        start_l: list[int] = []
-        was_latched = self._was_latched
-        named = self._named
-        for i, (ticks, t, seq, n, code, present, a, ok) in enumerate(
-            zip(ticks_l, t_l, seq_l, n_l, code_l, present_l, acc_l, usable_l, strict=True)
-        ):
-            a_ref = a_ref_step(ticks, t, seq)
-            if len(applied) > len(anchors):
-                anchors += [i] * (len(applied) - len(anchors))
-            stuck = stuck_step(ticks, code, present)
-            a0, a1, a2 = a
-            o0, o1, o2 = ok
-            s0, s1, s2 = stuck
-            h0, h1, h2 = o0 and not s0, o1 and not s1, o2 and not s2
-            residual, single = isolate(
-                (a0 if h0 else 0.0, a1 if h1 else 0.0, a2 if h2 else 0.0), h0 and h1 and h2, a_ref
-            )
-            single, named = carry_named_one(single, h0 and h1 and h2, named)
-            reason = (
-                _reason(single, stuck, present, ok)
-                if single >= 0 or not (h0 and h1 and h2)
-                else _NO_REASON
-            )
-            (l0, l1, l2), ev = latch(ticks, t, n, reason)
-            w0, w1, w2 = was_latched
-            slow = (_RESIDUAL, _STUCK)
-            start_l.append(
-                1
-                if l0 and not w0 and reason[0] in slow
-                else 2
-                if l1 and not w1 and reason[1] in slow
-                else 3
-                if l2 and not w2 and reason[2] in slow
-                else 0
-            )
-            was_latched = [l0, l1, l2]
-            if ev:
-                events += ev
-            u0, u1, u2 = o0 and not l0, o1 and not l1, o2 and not l2
-            mask = u0 + 2 * u1 + 4 * u2
-            if mask != FULL:
-                a = (a0 if u0 else 0.0, a1 if u1 else 0.0, a2 if u2 else 0.0)
-            u, w = solve_one(a, mask, geo)
-            u_l.append(u)
-            w_l.append(w)
-            mask_l.append(mask)
-            res_l.append(residual)
-            rows.append(
-                (
-                    magnitude_gradient_one(w, g),
-                    u,
-                    w,
-                    a_ref,
-                    residual,
-                    mask != FULL,
-                    EXCLUDED_OF_MASK[mask],
-                )
-            )
-        self._was_latched = was_latched
-        self._named = named
-        frames = None
-        if applied:
-            when, speed, restart, still = zip(*applied, strict=True)
-            frames = (
-                np.array(anchors, dtype=np.int64),
-                np.array(when, dtype=np.float64),
-                np.array(speed, dtype=np.float64),
-                np.array(restart, dtype=np.bool_),
-                np.array(still, dtype=np.bool_),
-            )
-            applied.clear()
-        if self.log is not None:
-            b_l = np.array(ticks_l, dtype=np.int64) * TICK_S
-            self.log.add(b_l, np.array(acc_l, dtype=np.float64), np.array(mask_l), frames)
-        fo = self.filter.push(
-            np.array(ticks_l, dtype=np.int64) * TICK_S,
-            np.array(u_l),
-            np.array(w_l),
-            np.array(mask_l, dtype=np.int64),
-            np.array(res_l),
-            np.array(start_l, dtype=np.int8),
-            frames,
-        )
-        out = [
-            (gr, *row, sg, su, co)
-            for gr, row, sg, su, co in zip(
-                fo.gradient.tolist(),
-                rows,
-                fo.sigma.tolist(),
-                fo.suspect.tolist(),
-                fo.coasting.tolist(),
-                strict=True,
-            )
-        ]
-        return out, events
-
 
 def kernel_is_ready() -> bool:
-    """True when the estimator's compiled kernel is loaded in this process or waits in
+    """True when the estimator's compiled kernels are loaded in this process or wait in
     numba's disk cache, valid for this machine and these sources: starting needs no compile.
     (The cache index is keyed by signature and the target machine's magic; numba returns
     no entries for a source changed since, and kernel_cache drops stale ones at import.)"""
-    from bench.fusion import joint_kernel
+    from bench.fusion import isolation, joint_kernel
 
-    run = joint_kernel.run
-    if getattr(run, "overloads", None):
+    return all(_is_ready(k) for k in (joint_kernel.run, *isolation.KERNELS))
+
+
+def _is_ready(kernel: Any) -> bool:
+    if getattr(kernel, "overloads", None):
         return True
     try:
-        index = run._cache._cache_file._load_index()
-        magic = run.targetctx.codegen().magic_tuple()
+        index = kernel._cache._cache_file._load_index()
+        magic = kernel.targetctx.codegen().magic_tuple()
     except Exception:  # no cache (read-only install, numba's jit disabled): it compiles
         return False
     return any(key[1] == magic for key in index)
 
 
 def warm_up() -> None:
-    """Compile the estimator's kernel, or load it from numba's disk cache."""
+    """Compile the estimator's kernels, or load them from numba's disk cache."""
     from bench.fusion.joint import warm_up as joint_warm_up
 
     joint_warm_up()
+    Estimator(Config())  # its stages compile or load their loops when built

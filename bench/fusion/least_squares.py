@@ -3,8 +3,8 @@
 Each channel measures a_i = u*cos(theta_i) + w*sin(theta_i), linear in (u, w), so every
 channel subset has a fixed pseudo-inverse: one per 3-bit channel mask, precomputed per
 config and applied as ``c0*a0 + c1*a1 + c2*a2`` in that order. Only IEEE-exact element-wise
-operations (+ - * / sqrt) are used, so a row gives the same float64 in a numpy batch of any
-length and in the scalar twins below (live pushes of one sample) -- bit for bit.
+operations (+ - * / sqrt) are used, so a row gives the same float64 in a batch of any
+length, from a live push of one sample to a replay's -- bit for bit.
 
 With all three channels there is one redundant equation. Its parity vector
 p = (cos th) x (sin th), normalised, is orthogonal to both columns, so p . a is the signed
@@ -14,7 +14,6 @@ gradient and acceleration, and e * p_k for an error e on channel k.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,17 +54,8 @@ def mask_code(used: np.ndarray) -> np.ndarray:
     return used[0] + 2 * used[1].astype(np.int64) + 4 * used[2].astype(np.int64)
 
 
-def combine(c: Row | np.ndarray, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
-    """c0*a0 + c1*a1 + c2*a2 in that order (c: a row, or (N, 3) rows)."""
-    return (
-        c[..., 0] * a0 + c[..., 1] * a1 + c[..., 2] * a2
-        if isinstance(c, np.ndarray)
-        else (c[0] * a0 + c[1] * a1 + c[2] * a2)
-    )
-
-
 def combine_arrays(c: Row, a0: np.ndarray, a1: np.ndarray, a2: np.ndarray) -> np.ndarray:
-    """:func:`combine` for a row and arrays, with fewer temporaries (on replay batches each
+    """c0*a0 + c1*a1 + c2*a2 in that order, with few temporaries (on replay batches each
     one is a fresh megabyte of page faults)."""
     out = np.multiply(c[0], a0)
     term = np.multiply(c[1], a1)
@@ -97,12 +87,6 @@ def solve_full(acc: np.ndarray, geo: Geometry) -> tuple[np.ndarray, np.ndarray]:
     return combine_arrays(pu, *acc), combine_arrays(pw, *acc)
 
 
-def solve_one(a: Row, code: int, geo: Geometry) -> tuple[float, float]:
-    """Scalar twin of :func:`solve`."""
-    pu, pw = geo.pinv[code]
-    return combine(pu, *a), combine(pw, *a)
-
-
 def magnitude_gradient(w: np.ndarray, g: float) -> np.ndarray:
     """Unsigned 1000 * tan(arccos(w/g)) written as 1000 * sqrt((1-c)(1+c)) / c, c = w/g
     clamped to 1 (noise); NaN unless c > 0. No a_ref needed: the analogue of the reference."""
@@ -116,8 +100,3 @@ def magnitude_gradient(w: np.ndarray, g: float) -> np.ndarray:
         np.divide(out, c, out=out)
     np.copyto(out, np.nan, where=~(c > 0.0))
     return out
-
-
-def magnitude_gradient_one(w: float, g: float) -> float:
-    c = min(w / g, 1.0)
-    return 1000.0 * math.sqrt((1.0 - c) * (1.0 + c)) / c if c > 0.0 else math.nan

@@ -78,14 +78,13 @@ def _plausible(step_ticks: np.ndarray) -> np.ndarray:
 
 
 class ReferenceAcceleration:
-    """Stateful: :meth:`push` (batch) or :meth:`step` (one sample) in sample order."""
+    """Stateful: :meth:`push` every batch of samples, of any length, in sample order."""
 
     def __init__(self, settings: EstimatorSettings) -> None:
         self.settings = settings
         self.kf = SpeedKalman(settings.speed_noise_mps, settings.jerk_psd)
         self.rho = settings.clock_drift_ppm * 1e-6
         self._pending = np.zeros(0, dtype=SPEED_DTYPE)  # buffered, not yet applied
-        self._next_seq: float = _INF  # seq of the first of them
         self._coast_s = settings.coast_s
         self._max_seq = -1  # R: largest sample seq so far
         self._board_base = _INF  # running min for the board offset
@@ -101,15 +100,14 @@ class ReferenceAcceleration:
         # the newest applied frame: acceleration, board time, standstill, filter settled
         self._last: tuple[float, float, bool, bool] = (math.nan, math.nan, False, False)
         # frames applied by the last push (anchor index, board time measured, speed m/s,
-        # restart, standstill), for the joint filter; :meth:`step` appends to ``rows``
+        # restart, standstill), for the joint filter
         self.applied: tuple[np.ndarray, ...] | None = None
-        self.rows: list[tuple[float, float, bool, bool]] = []
 
     def buffer(self, speeds: np.ndarray) -> None:
         """Keep this step's SPEED_REF frames until samples may apply them."""
         if len(speeds):
             pending = self._pending
-            self._keep(np.concatenate([pending, speeds]) if len(pending) else speeds)
+            self._pending = np.concatenate([pending, speeds]) if len(pending) else speeds
 
     def push(self, samples: np.ndarray) -> np.ndarray:
         """a_ref (m/s^2, NaN = unavailable) for each sample, in order."""
@@ -129,7 +127,7 @@ class ReferenceAcceleration:
             frames = self._pending[:k_new]
             new = self._apply(frames, b[anchors], board_off[anchors])
             self.applied = (anchors, new[1], frames["speed"] * 1e-3, self._restart, new[2])
-            self._keep(self._pending[k_new:])
+            self._pending = self._pending[k_new:]
             acc, when, still, ok = (
                 np.concatenate([h, x]) for h, x in zip((acc, when, still, ok), new, strict=True)
             )
@@ -143,41 +141,6 @@ class ReferenceAcceleration:
         out = np.repeat(value, served)
         np.copyto(out, np.nan, where=~(age <= self._coast_s))  # stale, or no frame yet (NaN)
         return out
-
-    def step(self, ticks: int, t: float, seq: int) -> float:
-        """Scalar twin of :meth:`push` for one sample."""
-        b = ticks * TICK_S
-        x = t - b
-        if math.isfinite(x):
-            y = x - self.rho * b
-            if y < self._board_base:  # min(base, y)
-                self._board_base = y
-        if seq > self._max_seq:
-            self._max_seq = seq
-        if self._next_seq < self._max_seq:
-            self._apply_pending(b)
-        acc, when, still, ok = self._last
-        if not (b - when <= self._coast_s and (ok or still)):
-            return math.nan
-        return 0.0 if still else acc
-
-    def _apply_pending(self, b: float) -> None:
-        """Apply, at board time b, the buffered frames below R (for :meth:`step`)."""
-        base = self._board_base
-        off = self.rho * b + base if math.isfinite(base) else math.nan
-        pending = self._pending
-        k = int(np.searchsorted(pending["seq"], self._max_seq, side="left"))
-        rows = pending[:k]
-        self._keep(pending[k:])
-        for ts, ft, mm in zip(
-            rows["timestamp"].tolist(), rows["t"].tolist(), rows["speed"].tolist(), strict=True
-        ):
-            self._last = self._apply_one(ts, ft, mm, b, off)
-
-    def _keep(self, pending: np.ndarray) -> None:
-        """Frames still buffered, and the seq of the first (what :meth:`step` checks)."""
-        self._pending = pending
-        self._next_seq = int(pending["seq"][0]) if len(pending) else _INF
 
     # -- internals -------------------------------------------------------------------------
     def _apply(
@@ -228,41 +191,3 @@ class ReferenceAcceleration:
         self._odo_ticks = int(odo[-1])
         self._zero_since = int(since[-1]) if zero[-1] else None
         return np.array(acc), when, still, ok
-
-    def _apply_one(
-        self, ts: int, t: float, speed_mm: int, anchor_b: float, anchor_off: float
-    ) -> tuple[float, float, bool, bool]:
-        """Scalar twin of :meth:`_apply` for one frame."""
-        s = self.settings
-        if self._started:
-            d = (ts - self._prev_ts) % TS_WRAP
-            step = (t - self._prev_t) / TICK_S
-            if not abs(step) <= MAX_BRIDGE_TICKS:  # NaN, inf or absurd: use board time
-                step = (anchor_b - self._prev_anchor_b) / TICK_S
-            if abs(step) <= MAX_BRIDGE_TICKS:
-                d += TS_WRAP * max(round((step - d) / TS_WRAP), 0)
-            restart = d > s.coast_s / TICK_S
-        else:
-            d = ts - self._odo_ticks
-            restart = True
-            self._started = True
-        odo = self._odo_ticks + d
-        zero = speed_mm == 0
-        since = NEVER if self._zero_since is None else self._zero_since
-        if zero and (self._zero_since is None or restart):
-            since = odo
-        still = zero and odo - since >= s.standstill_s / TICK_S
-        o = odo * TICK_S
-        x = t - o
-        if math.isfinite(x):
-            self._odo_base = min(self._odo_base, x - self.rho * o)
-        base = self._odo_base
-        mapped = o + (self.rho * o + base) - anchor_off if math.isfinite(base) else math.nan
-        when = mapped if math.isfinite(mapped) else anchor_b
-        acc, var = self.kf.run([d * TICK_S], [speed_mm * 1e-3], [restart])
-        self.rows.append((when, speed_mm * 1e-3, restart, still))
-        self._prev_ts, self._prev_t, self._prev_anchor_b = ts, t, anchor_b
-        self._odo_ticks = odo
-        self._zero_since = since if zero else None
-        sigma = s.a_ref_sigma_mps2
-        return acc[0], when, still, var[0] <= sigma * sigma
