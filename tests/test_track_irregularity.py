@@ -1,9 +1,11 @@
 """Track irregularity fixed in position (issue 25) against hand-computed rings: an axle
 passing a feature at p at speed v_p gives the board A (|v_p| / 20)^n exp(-zeta wn tau)
-sin(wd tau) vertically from the instant it is there, so the same metre rings in every run,
-whatever the seed or the speed profile, scaled by the speed. A channel at +-30 deg reads
-z sin(30 deg), so z = (ch1 - ch3) / (2 sin 30) - g on level track (the along-track force
-cancels). Frames are decoded with protocol.can_codec (tests.helpers.adc_values)."""
+(sin(wd tau) - wd zeta^2 tau) vertically from the instant it is there (the second term
+takes back the velocity the ring leaves: the body comes back to rest), so the same
+metre rings in every run, whatever the seed or the speed profile, scaled by the speed. A
+channel at +-30 deg reads z sin(30 deg), so z = (ch1 - ch3) / (2 sin 30) - g on level
+track (the along-track force cancels). Frames are decoded with protocol.can_codec
+(tests.helpers.adc_values)."""
 
 from __future__ import annotations
 
@@ -61,7 +63,8 @@ def run(keys: str, head: str, duration: float = 20.0, seed: int = 1):
 
 def ring(t: np.ndarray, t0: float, amp: float) -> np.ndarray:
     tau = t - t0
-    out = amp * np.exp(-ZETA * WN * tau) * np.sin(WD * tau)
+    shape = np.sin(WD * tau) - WD * ZETA**2 * tau
+    out = amp * np.exp(-ZETA * WN * tau) * shape
     return np.where(tau >= 0.0, out, 0.0)
 
 
@@ -73,6 +76,22 @@ def test_a_feature_rings_when_the_board_passes_it_scaled_by_speed():
     # at 10 m/s from 0 m the board is at 100 m at 10 s: 0.2 x 10/20 = 0.1 m/s^2
     assert np.abs(z - ring(t, 10.0, 0.1)).max() <= LSB
     assert np.abs(z).max() == pytest.approx(0.1 * 0.85, rel=0.05)  # peak e^-0.1 wn t at wd/4
+
+
+def test_a_ring_leaves_the_body_at_rest_its_acceleration_averages_to_zero():
+    # the integral of the ring is the body's vertical velocity after it: 0 (a dip leaves
+    # the wheel at its height). A ring of 0.1 sin(wd tau) would leave 0.1 wd / wn^2 =
+    # 0.00198 m/s, a steady 0.003 m/s^2 upwards on 25 m rail at 10 m/s (0.4 / s x 4 axles)
+    t, z = run(FEATURE, "initial_speed_mps = 10.0")
+    dt = 1.0 / RATE
+    # sampled: Euler-Maclaurin, sum f(k dt) dt = integral + dt f(0) / 2 - dt^2 f'(0) / 12,
+    # f(0) = 0, f'(0) = 0.1 wd (1 - zeta^2): -4.1e-5 m/s
+    want = -(dt**2) / 12.0 * 0.1 * WD * (1.0 - ZETA**2)
+    assert float(np.sum(z)) * dt == pytest.approx(want, abs=5e-6)
+    # yet it is felt: its first half cycle gives the body 0.1 (1 + e^(-zeta wn pi / wd))
+    # wd / wn^2 = 0.0034 m/s upwards
+    first = (t >= 10.0) & (t < 10.0 + math.pi / WD)
+    assert float(np.sum(z[first])) * dt > 2e-3
 
 
 def test_the_same_metre_rings_again_in_a_run_of_another_seed_and_speed_profile():
