@@ -72,3 +72,32 @@ def test_shutdown_waits_for_a_close_in_progress() -> None:
     closer.join(5)
     worker.join(5)
     assert not closer.is_alive() and slow.closes == 1
+
+
+def test_steps_go_through_while_a_new_file_opens() -> None:
+    """Opening a recording starts a writer process and waits for it (seconds on a loaded
+    machine): the processing thread's writes must not wait for that. The open is held here
+    until the writes are done; were it under the lock they go through, they would hang."""
+    opening, release = threading.Event(), threading.Event()
+
+    def open_slowly() -> CountingSink:
+        opening.set()
+        assert release.wait(60)  # a hang guard for the test's own end, not a bound
+        return CountingSink("b.mcap")
+
+    rec = Recorder(open_slowly, None)
+    starter = threading.Thread(target=rec.start)
+    starter.start()
+    try:
+        assert opening.wait(60)
+        writer = threading.Thread(target=lambda: [rec.write(step(1)) for _ in range(100)])
+        writer.start()
+        writer.join(60)  # with the bug: still waiting when the guard runs out
+        assert not writer.is_alive(), "a write waited for the file to open"
+        assert not rec.active  # the file still opens: those steps went nowhere
+    finally:
+        release.set()
+        starter.join(60)
+    rec.write(step(2))
+    assert rec.active and rec.path is not None and rec.path.name == "b.mcap"
+    rec.close()
