@@ -213,6 +213,72 @@ def test_parquet_row_groups_are_bounded(tmp_path):
     assert f.read().column("counter").to_pylist() == list(range(2500))
 
 
+class _HeldFile:
+    """A results file whose first write waits until the test lets it go (a row group being
+    compressed); every write's rows are kept, in order."""
+
+    path = "<held>"
+
+    def __init__(self) -> None:
+        import threading
+
+        self.started, self.release = threading.Event(), threading.Event()
+        self.timed_out = False
+        self.written: list[int] = []
+        self.closed = False
+
+    def write(self, table: pa.Table) -> None:
+        self.started.set()
+        if not self.written and not self.release.wait(timeout=30):  # never: the test hung
+            self.timed_out = True
+        self.written += table.column("counter").to_pylist()
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def test_a_replay_does_not_wait_while_a_chunk_is_written():
+    """While one chunk is being written, the replay goes on handing over rows: a chunk and
+    the queue's bound (4 + 8 rows here) more than while the writer itself was writing."""
+    from bench.sinks.tables import TableSink
+
+    rows = np.zeros(20, dtype=RESULT_DTYPE)
+    rows["n"] = np.arange(20)
+    held = _HeldFile()
+    sink = TableSink(held, chunk_rows=4, max_pending_rows=8)
+    sink.put(rows[:4])
+    assert held.started.wait(timeout=30)  # the first chunk's write is under way, held
+    for i in range(4, 16, 4):  # 12 more rows fit meanwhile
+        sink.put(rows[i : i + 4])
+    held.release.set()
+    sink.put(rows[16:])
+    sink.close()
+    assert not held.timed_out  # the puts above returned while the first write was held
+    assert held.written == list(range(20))
+    assert held.closed and sink.rows == 20 and sink.rows_lost == 0
+
+
+def test_a_failed_write_behind_counts_every_row_after_it():
+    from bench.sinks.tables import TableSink
+
+    class Full(_HeldFile):
+        def write(self, table: pa.Table) -> None:
+            if self.written:
+                raise OSError(28, "No space left on device")
+            self.written += table.column("counter").to_pylist()
+
+    rows = np.zeros(40, dtype=RESULT_DTYPE)
+    rows["n"] = np.arange(40)
+    full = Full()
+    sink = TableSink(full, chunk_rows=8)
+    for i in range(0, 40, 4):
+        sink.put(rows[i : i + 4])  # raise_errors=False: never raises, keeps the error
+    sink.close()
+    assert full.written == list(range(8))
+    assert sink.rows == 8 and sink.rows_lost == 32
+    assert sink.error == "<held>: cannot write the CSV: No space left on device"
+
+
 def test_large_chunks_formatted_by_two_threads_are_exact_too():
     """Chunks of PARALLEL_ROWS or more take the two-thread path: the same exact text."""
     from bench.sinks.tables import PARALLEL_ROWS

@@ -26,7 +26,7 @@ import contextlib
 import sys
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -316,36 +316,55 @@ class TableSink:
 
     def _run(self) -> None:
         """Rows become Arrow batches as they arrive (as compact as the numpy rows, so a
-        chunk waiting for its row group costs one copy of it); whole chunks are written."""
+        chunk waiting for its row group costs one copy of it); whole chunks are written.
+
+        A replay's chunks are written behind, by an encoder thread, one at a time and in
+        order: pyarrow encodes a chunk without the GIL (a Parquet row group takes a third of
+        a second), and meanwhile this thread goes on taking the pipeline's rows, which
+        would otherwise wait for it. A live run writes small chunks itself."""
         if self._cpus:
             from devices.cpu_placement import pin_thread
 
             pin_thread(self._cpus)
+        encoder = None
+        if not self.live:
+            encoder = ThreadPoolExecutor(1, thread_name_prefix=f"{self.kind} encoder")
+        writing: Future[None] | None = None
         buffered: list[pa.RecordBatch] = []
         n_buffered = 0
-        while True:
-            parts, end = self._take()
-            if self.error is not None:
-                self._lost_write += sum(len(p) for p in parts) + n_buffered
-                buffered, n_buffered = [], 0
-            else:
-                for rows in parts:
-                    try:
-                        buffered.append(self.layout.batch(rows))
-                        n_buffered += len(rows)
-                    except Exception as exc:
-                        self._fail(exc, len(rows))
-                while n_buffered >= self.chunk_rows or (n_buffered and (end or self.live)):
-                    table = pa.Table.from_batches(buffered)
-                    take = min(self.chunk_rows, n_buffered)
-                    self._write(table.slice(0, take))
-                    rest = table.slice(take)
-                    buffered, n_buffered = rest.to_batches(), rest.num_rows
-            if end:
-                break
-            staged = self.staged if self.live and self.error is None else None
-            if staged is not None and (why := staged.problem()):
-                self._fail(OSError(why), 0)  # like a full disk: the rows go nowhere
+        try:
+            while True:
+                parts, end = self._take()
+                if self.error is not None:
+                    writing = _done(writing)  # the encoder's count first, then this one
+                    self._lost_write += sum(len(p) for p in parts) + n_buffered
+                    buffered, n_buffered = [], 0
+                else:
+                    for rows in parts:
+                        try:
+                            buffered.append(self.layout.batch(rows))
+                            n_buffered += len(rows)
+                        except Exception as exc:
+                            self._fail(exc, len(rows))
+                    while n_buffered >= self.chunk_rows or (n_buffered and (end or self.live)):
+                        table = pa.Table.from_batches(buffered)
+                        take = min(self.chunk_rows, n_buffered)
+                        writing = _done(writing)
+                        if encoder is None:
+                            self._write(table.slice(0, take))
+                        else:
+                            writing = encoder.submit(self._write, table.slice(0, take))
+                        rest = table.slice(take)
+                        buffered, n_buffered = rest.to_batches(), rest.num_rows
+                if end:
+                    break
+                staged = self.staged if self.live and self.error is None else None
+                if staged is not None and (why := staged.problem()):
+                    self._fail(OSError(why), 0)  # like a full disk: the rows go nowhere
+        finally:
+            _done(writing)
+            if encoder is not None:
+                encoder.shutdown()
         try:
             self.file.close()
         except Exception as exc:  # the last bytes and the footer can fail too
@@ -381,6 +400,14 @@ class TableSink:
             "error": self.error,
             "kept": self.kept,
         }
+
+
+def _done(writing: Future[None] | None) -> Future[None] | None:
+    """Wait for the write under way, if any (:meth:`TableSink._write` keeps its failure);
+    None: no write is under way any more."""
+    if writing is not None:
+        writing.result()
+    return None
 
 
 def csv_sink(
