@@ -103,12 +103,28 @@ def _replay(d: Path, name: str, *extra: str) -> None:
     assert main([*args, "--csv", str(d / f"{name}.csv"), *extra]) == 0
 
 
-def test_smooth_adds_two_columns_and_leaves_every_other_one_as_it_was(run: Path) -> None:
+ESTIMATES = [  # the model's estimates and their sigmas (docs/ESTIMATOR.md "Columns")
+    "wheel_diameter_error_smoothed",
+    "wheel_diameter_error_smoothed_sigma",
+    "bias1_smoothed_mps2",
+    "bias1_smoothed_sigma_mps2",
+    "bias2_smoothed_mps2",
+    "bias2_smoothed_sigma_mps2",
+    "bias3_smoothed_mps2",
+    "bias3_smoothed_sigma_mps2",
+    "odometer_latency_smoothed_s",
+    "odometer_latency_smoothed_sigma_s",
+    "body_pitch_smoothed_rad",
+    "body_pitch_smoothed_sigma_rad",
+]
+
+
+def test_smooth_adds_its_columns_and_leaves_every_other_one_as_it_was(run: Path) -> None:
     _replay(run, "plain")
     _replay(run, "smooth", "--smooth", "--parquet", str(run / "smooth.parquet"))
     plain = pa_csv.read_csv(run / "plain.csv")
     smooth = pa_csv.read_csv(run / "smooth.csv")
-    new = ["gradient_smoothed_permil", "gradient_smoothed_sigma_permil"]
+    new = ["gradient_smoothed_permil", "gradient_smoothed_sigma_permil", *ESTIMATES]
     assert [c for c in smooth.column_names if c not in plain.column_names] == new
     assert smooth.drop_columns(new).equals(plain)
     # the plain CSV's text is the smoothed one's less the two columns, byte for byte
@@ -120,8 +136,12 @@ def test_smooth_adds_two_columns_and_leaves_every_other_one_as_it_was(run: Path)
     ]
     assert cut == (run / "plain.csv").read_text().splitlines()
     schema = pq.read_schema(run / "smooth.parquet")
-    for name in new:
+    for name in new[:2]:
         assert schema.field(name).metadata[b"unit"] == b"permil"
+    units = {"_mps2": b"m/s^2", "_s": b"s", "_rad": b"rad", "_sigma": b"1", "_smoothed": b"1"}
+    for name in ESTIMATES:
+        unit = next(u for end, u in units.items() if name.endswith(end))
+        assert schema.field(name).metadata[b"unit"] == unit, name
 
 
 def test_the_smoothed_gradient_is_the_track_s_within_its_sigma(run: Path) -> None:
@@ -178,6 +198,8 @@ def test_the_smoother_gives_the_same_bits_whatever_the_batch_cut(run: Path) -> N
         for name in ("filtered", "filtered_sigma", "smoothed", "smoothed_sigma"):
             assert getattr(other, name).tobytes() == getattr(got[0], name).tobytes(), name
         assert other.wheel_scale == got[0].wheel_scale
+        assert other.states.tobytes() == got[0].states.tobytes()
+        assert other.states_sigma.tobytes() == got[0].states_sigma.tobytes()
 
 
 def test_a_sliding_wheel_does_not_reach_the_smoothed_gradient(

@@ -76,7 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # the pipeline only for this command, not every CLI start
-    from bench.records.columns import RESULTS, SMOOTHED
+    from bench.records.columns import RESULTS
     from bench.replay.run import no_frames, replay
     from bench.sinks.tables import abort_all, close_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
@@ -115,7 +115,11 @@ def run(args: argparse.Namespace) -> int:
         smoothed = _smoothing_pass(args.input, config)
     source = open_log(args.input)
     sinks = []
-    layout = SMOOTHED if args.smooth else RESULTS
+    layout = RESULTS
+    if args.smooth:
+        from bench.replay.model_columns import LAYOUT
+
+        layout = LAYOUT
     try:
         if args.csv:
             sinks.append(csv_sink(args.csv, layout=layout))

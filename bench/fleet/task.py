@@ -116,7 +116,8 @@ def _replay_into(
     path: str, target: Path, config_toml: str | None, smooth: bool = False
 ) -> dict[str, Any]:
     from bench.fleet.summary import SummarySink, summary_row
-    from bench.records.columns import RESULTS, SMOOTHED
+    from bench.records.columns import RESULTS
+    from bench.replay.model_columns import LAYOUT as SMOOTHED
     from bench.replay.run import no_frames, replay
     from bench.replay.smooth import SmoothedSinks, smoothing_pass
     from bench.sinks.tables import abort_all, parquet_sink, results_metadata

@@ -27,7 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from bench.records.events import EVENT_DTYPE
-from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE, UNIX_TIME_FROM
+from bench.records.results import RESULT_DTYPE, UNIX_TIME_FROM
 
 UTC_COLUMN = "utc"
 
@@ -257,8 +257,6 @@ def csv_schema(layout: Layout) -> pa.Schema:
 
 CSV_SCHEMA = csv_schema(RESULTS)
 """The results CSV's columns (in the Parquet file's order)."""
-SMOOTHED = Layout(SMOOTHED_DTYPE, RESULT_FIELDS, utc_after="time_s")
-"""The results with the smoother's two columns (`bench replay --smooth`)."""
 EVENTS = Layout(EVENT_DTYPE, EVENT_FIELDS, utc_after="receive_time_s")
 
 

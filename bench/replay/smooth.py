@@ -18,9 +18,10 @@ import numpy as np
 from bench.config import Config
 from bench.errors import BenchError
 from bench.fusion.estimator import Estimator
+from bench.fusion.model import state
 from bench.fusion.model.log import ModelLog, Smoothed
 from bench.pipeline.steps import Pipeline, StepOutput
-from bench.records.results import SMOOTHED_DTYPE
+from bench.replay.model_columns import MODEL_DTYPE, estimate_names
 from bench.replay.prefetch import prefetch
 from bench.replay.run import run_steps
 from bench.sinks.tables import TableSink
@@ -39,9 +40,10 @@ def smoothing_pass(source: FileSource, config: Config, batch_frames: int = 65536
 
 
 def with_smoothed(results: np.ndarray, smoothed: Smoothed, start: int) -> np.ndarray:
-    """``results`` (RESULT_DTYPE) as SMOOTHED_DTYPE rows, the smoothed gradient of samples
-    ``start`` .. ``start + len(results)`` of the log joined."""
-    out = np.empty(len(results), dtype=SMOOTHED_DTYPE)
+    """``results`` (RESULT_DTYPE) as MODEL_DTYPE rows, the smoothed gradient and the model's
+    estimates (bench.replay.model_columns) of samples ``start`` .. ``start + len(results)``
+    of the log joined."""
+    out = np.empty(len(results), dtype=MODEL_DTYPE)
     for name in results.dtype.names or ():
         out[name] = results[name]
     stop = start + len(results)
@@ -52,12 +54,17 @@ def with_smoothed(results: np.ndarray, smoothed: Smoothed, start: int) -> np.nda
         )
     out["gradient_smoothed"] = smoothed.smoothed[start:stop]
     out["gradient_smoothed_sigma"] = smoothed.smoothed_sigma[start:stop]
+    blocks = np.arange(start, stop) // smoothed.block
+    for name in estimate_names():
+        i = state.NAMES.index(name)
+        out[f"model_{name}"] = smoothed.states[blocks, i]
+        out[f"model_{name}_sigma"] = smoothed.states_sigma[blocks, i]
     return out
 
 
 class SmoothedSinks:
     """A sink that writes each step's results, with the smoothed columns, to table sinks
-    made with the :data:`~bench.records.columns.SMOOTHED` layout."""
+    made with the :data:`~bench.replay.model_columns.LAYOUT` layout."""
 
     def __init__(self, sinks: Iterable[TableSink], smoothed: Smoothed) -> None:
         self.sinks = list(sinks)

@@ -419,7 +419,7 @@ def csv_sink(
     **kw: Any,
 ) -> TableSink:
     """The results CSV of a replay (``live=False``) or a live run, path checked first;
-    ``layout``: the rows' layout (:data:`~bench.records.columns.SMOOTHED` for --smooth)."""
+    ``layout``: the rows' layout (bench.replay.model_columns.LAYOUT for --smooth)."""
     check_output_file(target, "CSV")
     cpus = None
     if live:

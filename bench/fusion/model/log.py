@@ -12,7 +12,7 @@ cannot change the live estimator's results, and it is the same whatever the batc
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -48,6 +48,11 @@ class Smoothed:
     smoothed_sigma: np.ndarray
     wheel_scale: float  # the odometer's wheel-scale error E (SPEED_REF = (1 + E) v)
     wheel_scale_sigma: float
+    # every state smoothed, per block of `block` samples (sample i is in block i // block):
+    # (blocks, NX) values and 1-sigmas, columns in state.NAMES order
+    states: np.ndarray = field(default_factory=lambda: np.zeros((0, state.NX)))
+    states_sigma: np.ndarray = field(default_factory=lambda: np.zeros((0, state.NX)))
+    block: int = 1
 
     def describe(self) -> str:
         """One line: what the smoother learnt of the odometer."""
@@ -163,6 +168,9 @@ class ModelLog:
             out[3],
             wheel_scale=float(xs[0, state.E]),
             wheel_scale_sigma=float(math.sqrt(ps[0, state.E, state.E])),
+            states=xs,
+            states_sigma=np.sqrt(np.maximum(np.diagonal(ps, axis1=1, axis2=2), 0.0)),
+            block=block,
         )
 
 

@@ -1,0 +1,87 @@
+"""The explicit model's estimates as result columns of `bench replay --smooth` (issue 26).
+
+Every state of the model (bench.fusion.model.state.NAMES) that is an estimate of the
+board, the odometer or the car rather than of the motion becomes two columns, its smoothed
+value and its 1-sigma, per sample: the wheel-diameter error, each channel's bias, the
+odometer's latency, the body's static pitch, and any state the model gains later (named
+``model_<name>_smoothed`` until it has an entry in :data:`KNOWN`). Per sample, not once per
+run: in the model each of them walks (the biases in time, a drifting channel being a large
+bias; the pitch at stands; the wheel scale per metre), so the smoothed track is the
+estimate, and a Parquet column that stays constant costs a few bytes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.fusion.model import state
+from bench.records.columns import RESULT_FIELDS, Layout
+from bench.records.results import SMOOTHED_DTYPE
+
+MOTION = frozenset({"v", "a", "s", "k"})
+"""States of the motion and the track, not columns here: S is the gradient (its own column),
+speed and acceleration are the odometer's and a_ref's business."""
+
+KNOWN: dict[str, tuple[str, str, str]] = {
+    "e": (
+        "wheel_diameter_error_smoothed",
+        "1",
+        "the odometer's wheel-scale error E the model found (SPEED_REF = (1 + E) v: a wheel "
+        "worn below its configured diameter reads high, E > 0)",
+    ),
+    "b1": ("bias1_smoothed_mps2", "m/s^2", "channel 1's bias left after calibration"),
+    "b2": ("bias2_smoothed_mps2", "m/s^2", "channel 2's bias left after calibration"),
+    "b3": ("bias3_smoothed_mps2", "m/s^2", "channel 3's bias left after calibration"),
+    "latency": (
+        "odometer_latency_smoothed_s",
+        "s",
+        "the odometer's latency beyond its clock mapping: SPEED_REF reads v(t - latency)",
+    ),
+    "pitch": (
+        "body_pitch_smoothed_rad",
+        "rad",
+        "the car body's static pitch on its suspension (the load), nose up",
+    ),
+}
+"""State name -> (value column, unit, meaning). The sigma column is the value column with
+``_sigma`` before the unit suffix."""
+
+_SUFFIX = {"m/s^2": "_mps2", "s": "_s", "rad": "_rad"}
+
+
+def estimate_names() -> tuple[str, ...]:
+    """The model's states that become columns, in state order."""
+    return tuple(n for n in state.NAMES if n not in MOTION)
+
+
+def _entry(name: str) -> tuple[str, str, str]:
+    return KNOWN.get(
+        name,
+        (f"model_{name}_smoothed", "", f"the explicit model's state {name!r} "
+         "(bench/fusion/model/state.py gives its unit)"),
+    )  # fmt: skip
+
+
+def _sigma_column(column: str, unit: str) -> str:
+    suffix = _SUFFIX.get(unit, "")
+    stem = column[: -len(suffix)] if suffix and column.endswith(suffix) else column
+    return f"{stem}_sigma{suffix}"
+
+
+def fields_and_dtype() -> tuple[dict[str, tuple[tuple[str, ...], str, str]], np.dtype]:
+    """The columns table (RESULT_FIELDS and one value and sigma entry per estimate) and
+    the rows' dtype (SMOOTHED_DTYPE and fields ``model_<name>``, ``model_<name>_sigma``)."""
+    table = dict(RESULT_FIELDS)
+    extra: list[tuple[str, str]] = []
+    for name in estimate_names():
+        column, unit, doc = _entry(name)
+        table[f"model_{name}"] = ((column,), unit, f"{doc}; smoothed over the whole log")
+        table[f"model_{name}_sigma"] = ((_sigma_column(column, unit),), unit, "its 1-sigma")
+        extra += [(f"model_{name}", "<f8"), (f"model_{name}_sigma", "<f8")]
+    return table, np.dtype([*SMOOTHED_DTYPE.descr, *extra])
+
+
+MODEL_FIELDS, MODEL_DTYPE = fields_and_dtype()
+LAYOUT = Layout(MODEL_DTYPE, MODEL_FIELDS, utc_after="time_s")
+"""The results of `bench replay --smooth`: the filtered columns, the smoothed gradient and
+its sigma, then each estimate and its sigma."""
