@@ -30,7 +30,7 @@ import numpy as np
 
 from bench import __version__
 from bench.acceptance.answers import Answer, answer_for, parse_answer, schedule_steps, step_window
-from bench.acceptance.checks.base import not_measured
+from bench.acceptance.checks.base import not_measured, wants_smoothing
 from bench.acceptance.checks.registry import overall, run_check
 from bench.acceptance.feeds import BATCH_FRAMES, can_batches, fault_infos, uart_batches
 from bench.acceptance.model import Measurement, RunData, StepWindow
@@ -500,6 +500,10 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
             run, source = _run_emulated(plan, config, opts, info)
         else:
             run, source = _run_live(plan, config, opts, info, setup, mode)
+        if wants_smoothing(plan.checks):
+            from bench.acceptance.smoothing import smoothed_run
+
+            run = smoothed_run(run, out / "run.mcap", config)
         measurements = [run_check(c, run) for c in plan.checks]
         opts.stop.check()  # a signal whose raise a finaliser swallowed
     except KeyboardInterrupt as exc:
@@ -567,4 +571,8 @@ def remeasure(outcome: RunOutcome, mcap_path: Path | None = None) -> list[Measur
         mode=old.mode,
         link=old.link,
     )
+    if wants_smoothing(outcome.plan.checks):
+        from bench.acceptance.smoothing import smoothed_run
+
+        run = smoothed_run(run, Path(path), outcome.config)
     return [run_check(c, run) for c in outcome.plan.checks]

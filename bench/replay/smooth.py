@@ -21,6 +21,7 @@ from bench.fusion.estimator import Estimator
 from bench.fusion.model import state
 from bench.fusion.model.log import ModelLog, Smoothed
 from bench.pipeline.steps import Pipeline, StepOutput
+from bench.records.results import RESULT_DTYPE
 from bench.replay.model_columns import MODEL_DTYPE, estimate_names
 from bench.replay.prefetch import prefetch
 from bench.replay.run import run_steps
@@ -37,6 +38,18 @@ def smoothing_pass(source: FileSource, config: Config, batch_frames: int = 65536
     for _ in run_steps(pipeline, prefetch(source.batches(batch_frames))):
         pass
     return log.smooth(config)
+
+
+def smoothed_rows(source: FileSource, config: Config, batch_frames: int = 65536) -> np.ndarray:
+    """The whole log's results with the smoother's columns (MODEL_DTYPE), from one reading:
+    for a short run held in memory at once (an acceptance run's checks), not a replay."""
+    pipeline = Pipeline(config)
+    assert isinstance(pipeline.estimator, Estimator)
+    log = ModelLog()
+    pipeline.estimator.log = log
+    parts = [step.results for step in run_steps(pipeline, source.batches(batch_frames))]
+    results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
+    return with_smoothed(results, log.smooth(config), 0)
 
 
 def with_smoothed(results: np.ndarray, smoothed: Smoothed, start: int) -> np.ndarray:

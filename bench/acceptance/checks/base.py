@@ -20,6 +20,8 @@ ESTIMATORS = {
     "reference": ("gradient", True),
     "signed": ("gradient_signed", False),
     "magnitude": ("gradient_ls", True),
+    # the explicit model's RTS smoother over the whole recorded run (bench.acceptance.smoothing)
+    "smoothed": ("gradient_smoothed", False),
 }
 
 
@@ -40,7 +42,8 @@ ESTIMATOR_PARAM = Param(
     "choice",
     "reference",
     choices=tuple(ESTIMATORS),
-    help="reference: the device's method; signed: the bench's estimator; magnitude: LS",
+    help="reference: the device's method; signed: the bench's estimator; magnitude: LS; "
+    "smoothed: the model's smoother over the recorded run",
 )
 
 
@@ -172,6 +175,21 @@ def not_measured(spec: CheckSpec, verdict: str, why: str, **extra: Any) -> Measu
         spec.expect,
         extra,
     )
+
+
+def wants_smoothing(specs: list[CheckSpec] | tuple[CheckSpec, ...]) -> bool:
+    """Some check judges the smoothed gradient: the run must be smoothed before measuring."""
+    return any(c.params.get("estimator") == "smoothed" for c in specs)
+
+
+def missing_column(spec: CheckSpec, run: RunData) -> str | None:
+    """The result column the check's estimator names when the results lack it (a smoothed
+    check on results nobody smoothed: `bench replay --compare` judges the filtered ones)."""
+    name = spec.params.get("estimator")
+    if name is None:
+        return None
+    column = ESTIMATORS[name][0]
+    return None if column in (run.results.dtype.names or ()) else column
 
 
 def gradient_of(spec: CheckSpec, run: RunData) -> tuple[np.ndarray, bool, str]:

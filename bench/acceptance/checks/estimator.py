@@ -20,16 +20,23 @@ from bench.acceptance.checks.base import (
 )
 from bench.acceptance.model import Measurement, RunData
 
+SIGMAS = {
+    "signed": ("gradient_signed", "gradient_sigma"),
+    "smoothed": ("gradient_smoothed", "gradient_smoothed_sigma"),
+}
+"""The estimators that give a sigma: (gradient column, its 1-sigma column)."""
+
 
 def check_sigma_coverage(spec: CheckSpec, run: RunData) -> Measurement:
-    """Share of the window's given estimator gradients whose error against truth is within
-    ``n_sigma`` times their own ``gradient_sigma``: an honest 1-sigma covers about 95 % at
-    2 sigma. Withheld samples make no claim and are not counted."""
+    """Share of the window's given estimator gradients (``estimator``: signed or smoothed)
+    whose error against truth is within ``n_sigma`` times their own sigma: an honest
+    1-sigma covers about 95 % at 2 sigma. Withheld samples make no claim and are not counted."""
     if run.truth_gradient is None:
         return not_measured(spec, "error", "no emulator truth in this run (real board)")
     res = run.results
-    grad = res["gradient_signed"].astype(np.float64)
-    sigma = res["gradient_sigma"].astype(np.float64)
+    column, sigma_column = SIGMAS[spec.get("estimator")]
+    grad = res[column].astype(np.float64)
+    sigma = res[sigma_column].astype(np.float64)
     truth = run.truth_at()
     sel = in_window(spec, run) & np.isfinite(grad) & np.isfinite(truth) & np.isfinite(sigma)
     if not sel.any():
@@ -93,6 +100,13 @@ _KINDS: dict[str, Kind] = {
         check_sigma_coverage,
         "fraction",
         {
+            "estimator": Param(
+                "choice",
+                "signed",
+                choices=tuple(SIGMAS),
+                help="signed: the joint filter; "
+                "smoothed: the model's smoother over the recorded run",
+            ),
             "n_sigma": Param("number", 2.0, lo=0.0, help="coverage within this many sigma"),
             "min_fraction": Param("number", required=True, lo=0.0, hi=1.0),
             "warn_fraction": Param("number", lo=0.0, hi=1.0),

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 # every family registers its kinds in KINDS when imported
 from bench.acceptance.checks import estimator, faults, frames, gradient  # noqa: F401
-from bench.acceptance.checks.base import KINDS, CheckSpec, not_measured
+from bench.acceptance.checks.base import KINDS, CheckSpec, missing_column, not_measured
 from bench.acceptance.model import Measurement, RunData
 
 ORDER = (
@@ -36,6 +36,9 @@ for _name in ORDER:
 
 def run_check(spec: CheckSpec, run: RunData) -> Measurement:
     """One check; a bug or bad data inside it is the bench's failure (verdict error)."""
+    column = missing_column(spec, run)
+    if column is not None:
+        return not_measured(spec, "skip", f"these results have no {column} column")
     try:
         return KINDS[spec.kind].fn(spec, run)
     except Exception as exc:  # the other checks must still be measured and reported

@@ -1,0 +1,130 @@
+"""`bench accept` with checks on the smoothed gradient (``estimator = "smoothed"``, issue 26).
+
+Expectations are the emulator's configured truth and a hand computation: the board has a
+bias of DELTA * cos(theta_i) on each channel i, which a sensor along the track of DELTA
+m/s^2 would read: the gravity along the track itself. Its calibration sheet as built
+knows it (the offsets take it out) and the plan passes; the same sheet with its offsets
+zeroed does not, and every estimator then reads S + DELTA for S: the gradient off by
+1000 DELTA / g = 1.02 permil (at the run's 12 permil, 1000 DELTA g^2 / (g^2 - S^2)^1.5).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench.cli import main
+from tests.test_replay_smooth import GRADIENT, SCENARIO
+
+ANGLES = (30.0, 0.0, -30.0)
+DELTA = 0.01  # m/s^2 along the track
+G = 9.80665
+S = G * math.sin(math.atan(GRADIENT / 1000.0))
+OFF_PERMIL = 1000.0 * DELTA * G * G / (G * G - S * S) ** 1.5  # 1.0199
+
+PLAN = """
+scenario = "board.toml"
+
+[plan]
+title = "the smoothed gradient on a 12 permil grade"
+expect = "pass"
+
+[[checks]]
+name = "smoothed gradient bias"
+kind = "gradient_error"
+estimator = "smoothed"
+statistic = "bias"
+max_permil = 0.3
+[[checks]]
+name = "smoothed gradient availability"
+kind = "availability"
+estimator = "smoothed"
+min_fraction = 0.8
+[[checks]]
+name = "smoothed sigma coverage"
+kind = "sigma_coverage"
+estimator = "smoothed"
+min_fraction = 0.9
+[[checks]]
+name = "bench estimator availability"
+kind = "availability"
+estimator = "signed"
+min_fraction = 0.5
+"""
+
+
+@pytest.fixture(scope="module")
+def plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("accept_smoothed")
+    bias = [DELTA * math.cos(math.radians(a)) for a in ANGLES]
+    channels = "".join(
+        f"[[channels]]\nangle_deg = {a!r}\nbias_mps2 = {b!r}\n"
+        for a, b in zip(ANGLES, bias, strict=True)
+    )
+    (d / "board.toml").write_text(SCENARIO + channels)
+    (d / "smoothed.toml").write_text(PLAN)
+    args = ["emulate", str(d / "board.toml"), "--calibration-out", str(d / "cal.toml")]
+    assert main([*args, "--quiet"]) == 0
+    text = (d / "cal.toml").read_text()
+    assert text.count("offset = ") == 3
+    (d / "cal0.toml").write_text(re.sub(r"offset = .*", "offset = 0.0", text))
+    return d
+
+
+def _record(out: Path) -> dict[str, dict]:  # type: ignore[type-arg]
+    record = json.loads((out / "record.json").read_text())
+    return {m["name"]: m for m in record["measurements"]}
+
+
+def _junit(out: Path) -> dict[str, list[str]]:
+    cases = ET.parse(out / "junit.xml").getroot().iter("testcase")
+    return {c.get("name", ""): [e.tag for e in c] for c in cases}
+
+
+def test_the_board_as_built_passes_its_smoothed_checks(plan: Path) -> None:
+    out = plan / "built"
+    args = ["accept", str(plan / "smoothed.toml"), "--out", str(out), "--no-plots"]
+    assert main(args) == 0
+    got = _record(out)
+    bias = got["smoothed gradient bias"]
+    assert bias["verdict"] == "pass" and bias["value"] < 0.1, bias["detail"]
+    assert bias["extra"]["column"] == "gradient_smoothed"
+    assert got["smoothed gradient availability"]["verdict"] == "pass"
+    assert got["smoothed sigma coverage"]["verdict"] == "pass"
+    assert "failure" not in _junit(out)["smoothed gradient bias"]
+
+
+def test_a_bias_the_calibration_does_not_know_fails_by_the_hand_computed_error(
+    plan: Path,
+) -> None:
+    out = plan / "zeroed"
+    args = ["accept", str(plan / "smoothed.toml"), "--out", str(out), "--no-plots"]
+    assert main([*args, "--config", str(plan / "cal0.toml")]) == 1
+    got = _record(out)
+    bias = got["smoothed gradient bias"]
+    assert bias["verdict"] == "fail"
+    assert abs(bias["value"] - OFF_PERMIL) < 0.15, (bias["value"], OFF_PERMIL)
+    # the smoother's sigma does not know the calibration is off: its coverage fails too
+    assert got["smoothed sigma coverage"]["verdict"] == "fail"
+    junit = _junit(out)
+    assert "failure" in junit["smoothed gradient bias"]
+    assert "failure" not in junit["smoothed gradient availability"]
+
+
+def test_a_smoothed_check_on_filtered_results_is_skipped_with_its_reason() -> None:
+    from bench.acceptance.checks.base import CheckSpec
+    from bench.acceptance.checks.registry import run_check
+    from bench.acceptance.model import RunData
+    from bench.records.events import EVENT_DTYPE
+    from bench.records.results import RESULT_DTYPE
+
+    spec = CheckSpec(1, "s", "gradient_error", {"estimator": "smoothed", "max_permil": 1.0})
+    run = RunData(np.zeros(3, RESULT_DTYPE), np.zeros(0, EVENT_DTYPE), 100.0, 0, np.zeros(3))
+    m = run_check(spec, run)
+    assert m.verdict == "skip" and "gradient_smoothed" in m.detail
