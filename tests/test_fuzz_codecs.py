@@ -264,8 +264,8 @@ def test_mcap_magic_then_garbage_is_refused(
 @pytest.mark.parametrize("batch", [1, 4096], ids=["live-sized", "replay-sized"])
 def test_absurd_receive_time_on_any_frame_is_survived(bad_t: float, batch: int) -> None:
     """One corrupt receive time (a damaged log line, a broken clock) on a SPEED_REF, status
-    or ADC frame: fed live-sized (one frame at a time, the scalar fast paths) or in replay
-    batches, the pipeline carries on and the rest of the stream is assembled as before."""
+    or ADC frame: fed live-sized (one frame at a time) or in replay batches, the pipeline
+    carries on and the rest of the stream is assembled as before."""
     from devices.emulator import scenario_from_dict, simulate
 
     frames = simulate(scenario_from_dict({"duration_s": 2.0, "sample_rate_hz": 200})).frames

@@ -1,10 +1,10 @@
 """A long faulty stream through the whole Pipeline gives the same bytes however it is cut.
 
-Live runs feed the pipeline a frame or a few at a time (the scalar fast paths of decode,
-assembly, events and statistics), replay feeds it tens of thousands (the numpy paths);
-a mix of both happens after a stall. Every output array must agree to the byte, or a
-replay could not vouch for a run. Events are compared as a multiset: each step orders
-its own events by time, so where a step boundary falls may reorder equal-time events.
+Live runs feed the pipeline a frame or a few at a time, replay feeds it tens of thousands,
+through the same code; a mix of both happens after a stall. Every output array must agree
+to the byte, or a replay could not vouch for a run. Events are compared as a multiset: each
+step orders its own events by time, so where a step boundary falls may reorder equal-time
+events.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ def canonical(events: np.ndarray) -> np.ndarray:
 def sizes_for(kind: str, n: int, rng: np.random.Generator) -> list[int]:
     if kind == "whole":
         return [n]
-    if kind == "random":  # live-sized, bursts past the scalar limits, and replay-sized
+    if kind == "random":  # live-sized, bursts, and replay-sized
         return rng.choice([1, 2, 3, 5, 16, 17, 40, 64, 65, 200, 3000], size=n).tolist()
     return [int(kind)] * n
 

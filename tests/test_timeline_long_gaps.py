@@ -163,7 +163,7 @@ def test_a_wrap_guess_is_a_counted_notice():
     ev = make_events(EventKind.WRAP_GUESS, np.array([1.0, 2.0]), 2, np.array([10, 20]), 1)
     stats = Stats()
     stats.count_events(ev)
-    stats.count_events(ev[:1])  # a live step's few take the scalar path
+    stats.count_events(ev[:1])  # a live step's few
     assert stats.wrap_guesses == 3 and stats.as_dict()["wrap_guesses"] == 3
     assert severity(EventKind.WRAP_GUESS) == "info"
     assert describe(ev[0]).startswith("WRAP_GUESS ch2 sample 10 1 timestamp wraps")

@@ -81,6 +81,21 @@ def _reasons(single: np.ndarray, stuck: np.ndarray, status: np.ndarray) -> np.nd
     return reason
 
 
+def _exclusion_starts(before: np.ndarray, latched: np.ndarray, reason: np.ndarray) -> np.ndarray:
+    """(N,) int8: the channel (1..3) whose exclusion by the residual or as stuck starts at
+    this sample, else 0 (latched flags (3,) before the batch, (3, N) in it, reasons (3, N)):
+    its error grew slowly until then and may sit in the gradient (the lowest channel when
+    several start)."""
+    prev = np.empty_like(latched)
+    prev[:, 0] = before
+    prev[:, 1:] = latched[:, :-1]
+    new = latched & ~prev & ((reason == _RESIDUAL) | (reason == _STUCK))
+    out = np.where(new[2], 3, 0).astype(np.int8)
+    np.copyto(out, 2, where=new[1])
+    np.copyto(out, 1, where=new[0])
+    return out
+
+
 class Estimator:
     """Stateful; :meth:`push` every batch of samples in order (see bench.pipeline.steps)."""
 
@@ -95,7 +110,6 @@ class Estimator:
         self.isolator = ResidualIsolator(self.geo, config.g, s.residual_limit_mps2, window)
         self.latch = ExclusionLatch(_ticks(s.recover_s))
         self.filter = JointFilter(config, self.geo)
-        self._was_latched = [False, False, False]
         self._named = -1  # the channel the current residual alarm named (-1: none)
         self.log: ModelLog | None = None  # keeps the filter's inputs for the smoother
 
@@ -125,6 +139,7 @@ class Estimator:
         residual, single = self.isolator.push(acc_healthy, cand, a_ref)
         single, self._named = carry_named(single, cand, self._named)
         reason = _reasons(single, stuck, present & ~usable)
+        before = self.latch.latched.copy()
         latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
         used = usable & ~latched
         out = np.empty(n, dtype=ESTIMATE_DTYPE)
@@ -138,7 +153,7 @@ class Estimator:
             u, w = solve_channels(np.where(used, acc, 0.0), code, self.geo)
             out["degraded"] = code != FULL
             out["excluded"] = _EXCLUDED_OF_MASK[code]
-        starts = self._exclusion_starts(latched, reason)
+        starts = _exclusion_starts(before, latched, reason)
         if self.log is not None:
             self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied)
         fo = self.filter.push(ticks * TICK_S, u, w, code, residual, starts, self.a_ref.applied)
@@ -152,20 +167,6 @@ class Estimator:
         out["a_ref"] = a_ref
         out["residual"] = residual
         return out, events
-
-    def _exclusion_starts(self, latched: np.ndarray, reason: np.ndarray) -> np.ndarray:
-        """(N,) int8: the channel (1..3) whose exclusion by the residual or as stuck starts
-        at this sample, else 0 ((3, N) latched flags and reasons): its error grew slowly
-        until then and may sit in the gradient (the lowest channel when several start)."""
-        prev = np.empty_like(latched)
-        prev[:, 0] = self._was_latched
-        prev[:, 1:] = latched[:, :-1]
-        self._was_latched = latched[:, -1].tolist()
-        new = latched & ~prev & ((reason == _RESIDUAL) | (reason == _STUCK))
-        out = np.where(new[2], 3, 0).astype(np.int8)
-        np.copyto(out, 2, where=new[1])
-        np.copyto(out, 1, where=new[0])
-        return out
 
 
 def kernel_is_ready() -> bool:

@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from bench.pipeline.timeline import (
-    HALF_CW,
     RX_TOL_TICKS,
     WINDOW,
     Note,
@@ -52,7 +51,6 @@ _ERRORS = (
     (int(Outcome.WRONG_DLC), EventKind.WRONG_DLC, "dlc"),
     (int(Outcome.UNKNOWN_ID), EventKind.UNKNOWN_ID, "can_id"),
 )
-_HALF_CW = HALF_CW
 _COUNTER_JUMP, _LATE, _DUPLICATE = (
     int(EventKind.COUNTER_JUMP),
     int(EventKind.LATE),
