@@ -52,6 +52,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="write the per-sample results as Parquet (zstd; units and calibration in the schema)",
     )
     p.add_argument(
+        "--mcap",
+        metavar="OUT",
+        help="write the replay as an MCAP log (frames, samples, results, events); with "
+        "--smooth its results carry the smoother's columns",
+    )
+    p.add_argument(
         "--compare",
         action="store_true",
         help="(MCAP input) would this run have passed with --config? One table: validity "
@@ -78,13 +84,13 @@ def run(args: argparse.Namespace) -> int:
     # the pipeline only for this command, not every CLI start
     from bench.records.columns import RESULTS
     from bench.replay.run import no_frames, replay
-    from bench.sinks.tables import abort_all, close_all, csv_sink, parquet_sink, results_metadata
+    from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
 
     console = Console(stderr=True)
     check_clashes(
         [("input log", args.input), ("--config", args.config), ("--plan", args.plan)],
-        [("--csv", args.csv), ("--parquet", args.parquet)],
+        [("--csv", args.csv), ("--parquet", args.parquet), ("--mcap", args.mcap)],
     )
     if args.csv:
         check_output_file(args.csv, "CSV")
@@ -126,6 +132,11 @@ def run(args: argparse.Namespace) -> int:
         if args.parquet:
             meta = results_metadata(config, args.input)
             sinks.append(parquet_sink(args.parquet, meta, layout=layout))
+        mcap = None
+        if args.mcap:
+            from bench.replay.mcap_out import ReplayMcap
+
+            mcap = ReplayMcap(args.mcap, config, args.input, smoothed is not None)
     except BaseException:
         abort_all(sinks)
         source.close()
@@ -139,11 +150,12 @@ def run(args: argparse.Namespace) -> int:
 
         collected = Collector()
     feed: list[Any] = [*sinks, collected] if collected is not None else list(sinks)
+    feed += [mcap.sink] if mcap is not None else []
     joined = None
     if smoothed is not None:
         from bench.replay.smooth import SmoothedSinks
 
-        joined = SmoothedSinks(sinks, smoothed)
+        joined = SmoothedSinks(sinks, smoothed, [mcap.sink] if mcap is not None else [])
         feed = [joined]
     try:
         if show:
@@ -171,9 +183,13 @@ def run(args: argparse.Namespace) -> int:
             joined.check_complete()
     except BaseException:
         abort_all(sinks)  # the first failure is the one to tell; no output is left
+        if mcap is not None:
+            mcap.abort()
         raise
     else:
-        close_all(sinks)  # raises a write failure as a one-line error
+        from bench.replay.mcap_out import close_outputs
+
+        close_outputs(sinks, mcap)  # raises a write failure as a one-line error
     finally:
         source.close()
     if not args.quiet:  # plain lines: a console width must not break them

@@ -47,12 +47,21 @@ class MessageEncoder:
     place between the frames (the live batching) is kept."""
 
     def __init__(
-        self, mf: McapFile, base_id: int = DEFAULT_BASE, extra_topics: Sequence[S.TopicSpec] = ()
+        self,
+        mf: McapFile,
+        base_id: int = DEFAULT_BASE,
+        extra_topics: Sequence[S.TopicSpec] = (),
+        result_columns: Sequence[S.Column] = S.RESULT_COLUMNS,
     ) -> None:
         self.mf = mf
         self.base_id = base_id
         self.cid: dict[str, int] = {}
-        for spec in (*S.TOPICS, *extra_topics):
+        self.result_columns = result_columns  # more: the rows carry the smoother's columns
+        topics = S.TOPICS
+        if result_columns is not S.RESULT_COLUMNS:
+            mine = S.result_topic(result_columns)
+            topics = tuple(mine if t.topic == S.RESULT_TOPIC else t for t in S.TOPICS)
+        for spec in (*topics, *extra_topics):
             sid = mf.add_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
             self.cid[spec.topic] = mf.add_channel(
                 spec.topic,
@@ -196,7 +205,7 @@ class MessageEncoder:
 
     def write_results(self, results: np.ndarray, fallback_ns: int) -> None:
         if len(results):
-            payloads = S.encode_rows(results, S.RESULT_COLUMNS)
+            payloads = S.encode_rows(results, self.result_columns)
             self._json(
                 S.RESULT_TOPIC, results["t"], payloads, fallback_ns, results["n"] & 0xFFFFFFFF
             )

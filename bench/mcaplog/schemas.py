@@ -352,12 +352,19 @@ def object_schema(
     return {"title": title, "description": description, "type": "object", "properties": props}
 
 
-RESULT_SCHEMA = object_schema(
-    "acb3.bench.Result",
-    "One fusion result per sampling instant: every RESULT_DTYPE field (CSV columns included; "
-    "CSV 'counter' = n). Floats round-trip exactly; null = NaN.",
-    RESULT_COLUMNS,
-)
+def result_schema(columns: Sequence[Column] = RESULT_COLUMNS) -> dict[str, object]:
+    """The results' schema; ``columns`` beyond RESULT_COLUMNS: `bench replay --smooth
+    --mcap`'s smoothed gradient and model estimates (bench.replay.model_columns)."""
+    more = "" if columns is RESULT_COLUMNS else ", then the smoother's columns"
+    return object_schema(
+        "acb3.bench.Result",
+        f"One fusion result per sampling instant: every RESULT_DTYPE field{more} (CSV columns "
+        "included; CSV 'counter' = n). Floats round-trip exactly; null = NaN.",
+        columns,
+    )
+
+
+RESULT_SCHEMA = result_schema()
 SAMPLE_SCHEMA = object_schema(
     "acb3.bench.Sample",
     "One assembled sampling instant (SAMPLE_DTYPE): raw codes, status bytes, presence.",
@@ -539,6 +546,11 @@ TOPICS: tuple[TopicSpec, ...] = (
     _json_topic(HEALTH_TOPIC, HEALTH_SCHEMA, "per-channel health, about 1 Hz"),
     _json_topic(EVENT_TOPIC, EVENT_SCHEMA, "events and operator marks (foxglove.Log)"),
 )
+
+
+def result_topic(columns: Sequence[Column]) -> TopicSpec:
+    """The results' topic with the given columns (:func:`result_schema`)."""
+    return _json_topic(RESULT_TOPIC, result_schema(columns), "fusion results (every CSV column)")
 
 
 def truth_topic(columns: Sequence[Column]) -> TopicSpec:

@@ -91,7 +91,10 @@ class McapSink(QueuedSink):
         health_interval_s: float = 1.0,
         group_interval_s: float = DEFAULT_GROUP_INTERVAL_S,
         threaded: bool = True,
+        result_columns: Sequence[S.Column] | None = None,
     ) -> None:
+        """``result_columns``: the results' columns when the rows carry more than
+        RESULT_DTYPE (`bench replay --smooth --mcap`: bench.replay.model_columns)."""
         super().__init__(path, config, queue_size, flush_interval_s, group_interval_s)
         self.health_interval_s = health_interval_s
         self._frames_pending = 0
@@ -111,7 +114,9 @@ class McapSink(QueuedSink):
             now = time.time_ns()
             for name, data in attachments:
                 self._file.add_attachment(name, data, log_time=now)
-            self._enc = MessageEncoder(self._file, config.base_id)
+            self._enc = MessageEncoder(
+                self._file, config.base_id, result_columns=result_columns or S.RESULT_COLUMNS
+            )
             self._file.flush_io()
             self.bytes_written = self._file.position
         except OSError as exc:

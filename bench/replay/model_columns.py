@@ -12,11 +12,14 @@ estimate, and a Parquet column that stays constant costs a few bytes.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from bench.fusion.model import state
+from bench.mcaplog.schemas import Column, columns_for
 from bench.records.columns import RESULT_FIELDS, Layout
-from bench.records.results import SMOOTHED_DTYPE
+from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE
 
 MOTION = frozenset({"v", "a", "s", "k"})
 """States of the motion and the track, not columns here: S is the gradient (its own column),
@@ -85,3 +88,17 @@ MODEL_FIELDS, MODEL_DTYPE = fields_and_dtype()
 LAYOUT = Layout(MODEL_DTYPE, MODEL_FIELDS, utc_after="time_s")
 """The results of `bench replay --smooth`: the filtered columns, the smoothed gradient and
 its sigma, then each estimate and its sigma."""
+
+
+def mcap_columns() -> list[Column]:
+    """The MCAP results' JSON properties of MODEL_DTYPE rows (`bench replay --smooth
+    --mcap`): RESULT_DTYPE's, then each smoother field by its dtype name (``model_e``, ...),
+    described with its CSV column and unit."""
+    out = []
+    for col in columns_for(MODEL_DTYPE):
+        if col.field not in (RESULT_DTYPE.names or ()):
+            (column,), unit, doc = MODEL_FIELDS[col.field]
+            unit_text = f", {unit}" if unit else ""
+            col = dataclasses.replace(col, description=f"{column}{unit_text}: {doc}")
+        out.append(col)
+    return out

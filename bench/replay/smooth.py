@@ -11,6 +11,7 @@ reads).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 
 import numpy as np
@@ -25,6 +26,7 @@ from bench.records.results import RESULT_DTYPE
 from bench.replay.model_columns import MODEL_DTYPE, estimate_names
 from bench.replay.prefetch import prefetch
 from bench.replay.run import run_steps
+from bench.sinks.base import Sink
 from bench.sinks.tables import TableSink
 from devices.base import FileSource
 
@@ -79,16 +81,22 @@ class SmoothedSinks:
     """A sink that writes each step's results, with the smoothed columns, to table sinks
     made with the :data:`~bench.replay.model_columns.LAYOUT` layout."""
 
-    def __init__(self, sinks: Iterable[TableSink], smoothed: Smoothed) -> None:
+    def __init__(
+        self, sinks: Iterable[TableSink], smoothed: Smoothed, step_sinks: Iterable[Sink] = ()
+    ) -> None:
+        """``step_sinks`` (the MCAP log) get each whole step, its results joined."""
         self.sinks = list(sinks)
+        self.step_sinks = list(step_sinks)
         self.smoothed = smoothed
         self.rows = 0  # results joined so far
 
     def write(self, step: StepOutput) -> None:
-        if not len(step.results):
-            return
         rows = with_smoothed(step.results, self.smoothed, self.rows)
         self.rows += len(rows)
+        for sink in self.step_sinks:
+            sink.write(dataclasses.replace(step, results=rows))
+        if not len(rows):
+            return
         for sink in self.sinks:
             sink.put(rows)
 
