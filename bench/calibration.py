@@ -69,6 +69,10 @@ LOAD_EDGE = 0.15
 """The body's static pitch changes at stops (:func:`load_pitch`): measured from LOAD_SETTLE_S
 after the stop and until LOAD_GUARD_S before the departure, means over LOAD_WINDOW_S but
 within LOAD_EDGE of the stop's length from each end."""
+FROZEN_SAMPLES = 5
+"""A channel whose code repeats over this many samples while another's changes is stuck
+(:func:`frozen`): with any noise a 24-bit code repeats from one sample to the next about
+once in a thousand samples, five times in a row never."""
 MIN_ACCEL_S = 5.0
 MIN_ACCEL_MPS2 = 0.1
 """speed: the steady blocks must hold this much time (taper-weighted) of acceleration or
@@ -210,23 +214,49 @@ def record(batches: Iterable[SourceBatch], config: Config) -> Recording:
     from bench.pipeline.steps import Pipeline
     from bench.replay.run import run_steps
 
-    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     speeds: list[tuple[np.ndarray, np.ndarray]] = []
     for step in run_steps(Pipeline(config), batches):
         r = step.results
         if len(r):
-            parts.append((r["time_s"], r["acc"], r["seq"]))
+            parts.append((r["time_s"], r["acc"], r["seq"], r["code"]))
         if len(step.speed):
             speeds.append((step.speed["seq"], step.speed["speed"] / 1000.0))
     if not parts:
         return Recording(np.zeros(0), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
-    time_s, acc, seq = (np.concatenate(col) for col in zip(*parts, strict=True))
+    time_s, acc, seq, code = (np.concatenate(col) for col in zip(*parts, strict=True))
+    acc = np.where(frozen(code), np.nan, acc)
     if speeds:
         odo_seq, odo_v = (np.concatenate(col) for col in zip(*speeds, strict=True))
     else:
         odo_seq, odo_v = np.zeros(0, np.int64), np.zeros(0)
     a, v = odometer_accel(time_s, seq, odo_seq, odo_v)
     return Recording(time_s, acc, a, v)
+
+
+def frozen(code: np.ndarray) -> np.ndarray:
+    """(N, 3) True where a channel's ADC code stays the same over FROZEN_SAMPLES or more
+    consecutive samples while another channel's code changes within them: a stuck
+    channel, from its first frozen sample on. The estimator's own stuck test says so only
+    after its window, and the stale value it kept until then is what a calibration must
+    not see: at a stand where passengers board, a channel stuck for 9 s read 0.01 m/s^2
+    stale, and the quiet standing blocks, the most weighted, turned the fit 0.46 deg."""
+    n = len(code)
+    out = np.zeros(code.shape, dtype=bool)
+    if n < 2:
+        return out
+    changed = np.diff(code, axis=0) != 0  # (N - 1, 3): sample i + 1 differs from i
+    for k in range(code.shape[1]):
+        others = np.cumsum(
+            np.concatenate([[0], changed[:, [j for j in range(3) if j != k]].any(axis=1)])
+        )
+        same = ~changed[:, k]
+        edges = np.diff(np.concatenate([[0], same.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)  # diff rows
+        for s0, e0 in zip(starts, ends, strict=True):  # samples s0 .. e0 share one code
+            if e0 - s0 + 1 >= FROZEN_SAMPLES and others[e0] > others[s0]:
+                out[s0 : e0 + 1, k] = True
+    return out
 
 
 def window_sums(

@@ -16,6 +16,7 @@ from bench.calibration import (
     TAPER_S,
     calibrate,
     curvature,
+    frozen,
     newey_west,
     odometer_accel,
     record,
@@ -148,3 +149,35 @@ def test_newey_west_sums_bartlett_weighted_cross_products_over_block_indices() -
             want = want + weight * (cross + cross.T)
     assert newey_west(scores, ids, 2) == pytest.approx(want)
     assert newey_west(scores, ids, 0) == pytest.approx(scores.T @ scores)
+
+
+def test_a_stuck_channel_is_left_out_from_its_first_frozen_sample() -> None:
+    """Codes by hand: ch3 repeats 6 times while ch1 changes (stuck), ch2 repeats 3 times
+    (noise can), and all three hold still together (a quiet board is not stuck)."""
+    code = np.array(
+        [[1, 10, 100], [2, 11, 101], [3, 11, 101], [4, 11, 101], [5, 12, 101], [6, 13, 101],
+         [7, 14, 101], [8, 15, 102], [8, 15, 102], [8, 15, 102], [8, 15, 102], [8, 15, 102],
+         [8, 15, 102], [9, 16, 103]]
+    )  # fmt: skip
+    want = np.zeros(code.shape, dtype=bool)
+    want[1:7, 2] = True  # rows 1..6 share ch3's code 101 while ch1 runs 2..7
+    assert np.array_equal(frozen(code), want)
+
+
+def test_the_emulators_stuck_fault_leaves_those_samples_out_of_the_recording() -> None:
+    """ch3 stuck from 30 to 38 s of the hills run (in motion): its acceleration is NaN in
+    the recording over exactly that span (the estimator's own stuck test says so only a
+    window later), the other channels and the rest are kept."""
+    sim = simulate(
+        scenario_from_dict(
+            HILLS | {"faults": [{"channel": 3, "kind": "stuck", "start_s": 30.0, "end_s": 38.0}]}
+        )
+    )
+    rec = record([SourceBatch(sim.frames)], Config())
+    t = sim.truth["time_s"]
+    assert len(t) == len(rec.time_s)
+    inside = (t >= 30.0 + 0.01) & (t < 38.0 - 0.01)
+    outside = (t < 30.0 - 0.01) | (t >= 38.0 + 0.01)
+    assert np.isnan(rec.acc[inside, 2]).all()
+    assert np.isfinite(rec.acc[outside, 2]).all()
+    assert np.isfinite(rec.acc[:, :2]).all()
