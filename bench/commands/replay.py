@@ -81,9 +81,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # the pipeline only for this command, not every CLI start
+    from bench.pipeline.warmup import load_in_background
+
+    load_in_background()  # the estimator's kernels load while the files are checked and opened
     from bench.records.columns import RESULTS
-    from bench.replay.run import no_frames, replay
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
 
@@ -142,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         source.close()
         raise
     prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
+    from bench.replay.run import no_frames, replay  # the pipeline: after the files are open
+
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
     collected = None

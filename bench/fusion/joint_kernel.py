@@ -451,7 +451,7 @@ def _sample(  # type: ignore[no-untyped-def]
     out_accel[oi] = x[IA]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # the read-ahead and the writer run meanwhile
 def run(  # type: ignore[no-untyped-def]
     x,
     cov,

@@ -15,6 +15,7 @@ this module for :class:`WarmUpStatus` and must not import fusion.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -74,6 +75,24 @@ def prepare(say: Callable[[str], None]) -> float | None:
     took = time.monotonic() - started
     say(f"estimator ready ({took:.0f} s)")
     return took
+
+
+def load_in_background() -> threading.Thread:
+    """Load the estimator's kernels from numba's disk cache in a thread, while a headless
+    command checks its arguments and opens its files (none of which needs them); its
+    pipeline, built later, finds them loaded (numba's compiler lock has it wait for a load
+    under way). Kernels that need compiling are left to :func:`prepare`, which says so."""
+
+    def load() -> None:
+        with contextlib.suppress(Exception):  # building the pipeline raises it again, in turn
+            if kernel_is_ready():
+                from bench.fusion.estimator import warm_up
+
+                warm_up()
+
+    thread = threading.Thread(target=load, name="estimator-load", daemon=True)
+    thread.start()
+    return thread
 
 
 class KernelWarmUp:

@@ -11,10 +11,14 @@ from bench.config import Config
 from bench.errors import BenchError
 from bench.pipeline.steps import Pipeline, StepOutput
 from bench.records.results import RESULT_DTYPE
-from bench.replay.prefetch import prefetch
+from bench.replay.prefetch import ReadAhead
 from bench.sinks.base import Sink
 from devices.base import FileSource, SourceBatch
 from devices.tomlcheck import printable
+
+READ_AHEAD = 4
+"""Batches read ahead of the pipeline (65 536 frames each, 1.5 MB): while the pipeline is
+built, the reading gets that far."""
 
 
 @dataclass
@@ -42,20 +46,25 @@ def replay(
 ) -> ReplayOutcome:
     """Run a log through a fresh Pipeline, feeding each step to the sinks.
 
-    The source is read a few batches ahead in a thread of its own (bench.replay.prefetch)."""
-    pipeline = Pipeline(config)
+    The source is read a few batches ahead in a thread of its own (bench.replay.prefetch),
+    which starts before the pipeline is built: the estimator's kernels load meanwhile."""
+    ahead = ReadAhead(source.batches(batch_frames), depth=READ_AHEAD)
     sinks = list(sinks)
     parts: list[np.ndarray] = []
     notices: list[str] = []
-    for step in run_steps(pipeline, prefetch(source.batches(batch_frames))):
-        if step.batch is not None:
-            notices += [f"{n.kind}: {n.detail}" for n in step.batch.notices]
-        for sink in sinks:
-            sink.write(step)
-        if collect and len(step.results):
-            parts.append(step.results)
-        if on_progress is not None:
-            on_progress(source.position())
+    try:
+        pipeline = Pipeline(config)
+        for step in run_steps(pipeline, ahead):
+            if step.batch is not None:
+                notices += [f"{n.kind}: {n.detail}" for n in step.batch.notices]
+            for sink in sinks:
+                sink.write(step)
+            if collect and len(step.results):
+                parts.append(step.results)
+            if on_progress is not None:
+                on_progress(source.position())
+    finally:
+        ahead.close()
     results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
     return ReplayOutcome(pipeline, results, notices)
 
