@@ -62,6 +62,10 @@ def plot_gradient(run: RunData, path: Path) -> None:
         ax.plot(
             *_envelope(t, r["gradient_signed"]), color="tab:orange", lw=0.8, label="signed (bench)"
         )
+    if "gradient_smoothed" in (r.dtype.names or ()) and np.isfinite(r["gradient_smoothed"]).any():
+        ax.plot(  # a plan with smoothed checks (bench.acceptance.smoothing)
+            *_envelope(t, r["gradient_smoothed"]), color="tab:green", lw=0.8, label="smoothed"
+        )
     if run.truth_gradient is not None:
         tt = np.arange(len(run.truth_gradient)) / run.rate_hz
         ax.plot(*_envelope(tt, run.truth_gradient), "k--", lw=1.2, label="truth", zorder=3)
@@ -178,6 +182,10 @@ def plot_errors(run: RunData, measurements: list[Measurement], path: Path) -> No
         if np.isfinite(r["gradient_signed"]).any():
             e_sig = r["gradient_signed"] - truth
             ax.plot(*_envelope(t, e_sig), lw=0.8, color="tab:orange", label="signed - truth")
+        if "gradient_smoothed" in (r.dtype.names or ()):
+            e_sm = r["gradient_smoothed"] - truth
+            if np.isfinite(e_sm).any():
+                ax.plot(*_envelope(t, e_sm), lw=0.8, color="tab:purple", label="smoothed - truth")
         plotted = True
     for s in run.steps:
         if s.answer == "skip":
