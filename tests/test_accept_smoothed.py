@@ -128,3 +128,23 @@ def test_a_smoothed_check_on_filtered_results_is_skipped_with_its_reason() -> No
     run = RunData(np.zeros(3, RESULT_DTYPE), np.zeros(0, EVENT_DTYPE), 100.0, 0, np.zeros(3))
     m = run_check(spec, run)
     assert m.verdict == "skip" and "gradient_smoothed" in m.detail
+
+
+def test_the_smoothed_columns_join_the_run_s_results_by_sample_counter() -> None:
+    """A sample the log lacks (a frame the recording lost) gets none; order is not assumed."""
+    from bench.acceptance.smoothing import join_by_counter
+    from bench.records.results import RESULT_DTYPE
+    from bench.replay.model_columns import MODEL_DTYPE
+
+    results = np.zeros(4, RESULT_DTYPE)
+    results["n"] = [10, 11, 12, 13]
+    results["gradient_signed"] = [1.0, 2.0, 3.0, 4.0]
+    logged = np.zeros(3, MODEL_DTYPE)
+    logged["n"] = [13, 10, 12]  # 11 is not in the log
+    logged["gradient_smoothed"] = [40.0, 10.0, 30.0]
+    logged["model_e"] = [0.4, 0.1, 0.3]
+    out = join_by_counter(results, logged)
+    assert out["gradient_signed"].tolist() == [1.0, 2.0, 3.0, 4.0]  # the run's own, untouched
+    got = out["gradient_smoothed"]
+    assert got[0] == 10.0 and math.isnan(got[1]) and got[2] == 30.0 and got[3] == 40.0
+    assert out["model_e"][3] == 0.4

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -39,7 +40,7 @@ def _channels() -> str:
 
 
 @pytest.fixture(scope="module")
-def table(tmp_path_factory: pytest.TempPathFactory) -> pa.Table:
+def board(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("estimates")
     (d / "run.toml").write_text(SCENARIO + _channels())
     args = ["emulate", str(d / "run.toml"), "--out", str(d / "run.log"), "--quiet"]
@@ -48,9 +49,30 @@ def table(tmp_path_factory: pytest.TempPathFactory) -> pa.Table:
     text = (d / "cal.toml").read_text()
     assert text.count("offset = ") == 3
     (d / "cal0.toml").write_text(re.sub(r"offset = .*", "offset = 0.0", text))
-    replay = ["replay", str(d / "run.log"), "--config", str(d / "cal0.toml"), "-q", "--smooth"]
-    assert main([*replay, "--parquet", str(d / "run.parquet")]) == 0
-    return pq.read_table(d / "run.parquet")
+    return d
+
+
+def _replay(d: Path) -> list[str]:
+    return ["replay", str(d / "run.log"), "--config", str(d / "cal0.toml"), "--smooth"]
+
+
+@pytest.fixture(scope="module")
+def table(board: Path) -> pa.Table:
+    assert main([*_replay(board), "-q", "--parquet", str(board / "run.parquet")]) == 0
+    return pq.read_table(board / "run.parquet")
+
+
+def test_the_replay_says_each_bias_it_found(
+    board: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(_replay(board)) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if "ch1 bias" in x)
+    for i, truth in enumerate(BIAS, 1):
+        got = re.search(rf"ch{i} bias ([-+.\d]+) mm/s\^2 \(1-sigma ([.\d]+)\)", line)
+        assert got is not None, line
+        value, sigma = float(got[1]), float(got[2])
+        assert abs(value - 1e3 * truth) <= 2.0 * sigma, line
+    assert "body pitch" in line and "moving" not in line  # nothing drifts in this run
 
 
 def _col(table: pa.Table, name: str) -> np.ndarray:

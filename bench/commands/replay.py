@@ -198,7 +198,11 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:  # plain lines: a console width must not break them
         print(f"bench: {config.announcement()}", file=sys.stderr)
         if smoothed is not None:
+            from bench.replay.model_columns import describe_estimates
+
             print(f"bench: {smoothed.describe()}", file=sys.stderr)
+            if line := describe_estimates(smoothed):
+                print(f"bench: {line}", file=sys.stderr)
         hint = replay_hint(config, args.input)
         if hint:
             print(f"bench: {hint}", file=sys.stderr)

@@ -17,6 +17,7 @@ import dataclasses
 import numpy as np
 
 from bench.fusion.model import state
+from bench.fusion.model.log import Smoothed
 from bench.mcaplog.schemas import Column, columns_for
 from bench.records.columns import RESULT_FIELDS, Layout
 from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE
@@ -102,3 +103,33 @@ def mcap_columns() -> list[Column]:
             col = dataclasses.replace(col, description=f"{column}{unit_text}: {doc}")
         out.append(col)
     return out
+
+
+_SHOWN = {  # state name -> (label, unit shown, factor from SI)
+    "b1": ("ch1 bias", "mm/s^2", 1e3),
+    "b2": ("ch2 bias", "mm/s^2", 1e3),
+    "b3": ("ch3 bias", "mm/s^2", 1e3),
+    "latency": ("odometer latency", "ms", 1e3),
+    "pitch": ("body pitch", "deg", 180.0 / np.pi),
+}
+
+
+def describe_estimates(smoothed: Smoothed) -> str:
+    """One line of the run's estimates but E (which Smoothed.describe gives): each one's
+    median over the run and median 1-sigma, "moving" where it spans more than its 2 sigma
+    (a drifting channel, a load step)."""
+    if not len(smoothed.states):
+        return ""
+    parts = []
+    for name in estimate_names():
+        if name == "e":
+            continue
+        i = state.NAMES.index(name)
+        label, unit, factor = _SHOWN.get(name, (name, "", 1.0))
+        x, sig = smoothed.states[:, i] * factor, smoothed.states_sigma[:, i] * factor
+        mid, s = float(np.median(x)), float(np.median(sig))
+        text = f"{label} {mid:+.3g} {unit} (1-sigma {s:.2g})".replace("  ", " ")
+        if float(x.max() - x.min()) > 2.0 * s:
+            text += f" moving {float(x.min()):+.3g}..{float(x.max()):+.3g}"
+        parts.append(text)
+    return "smoother: " + ", ".join(parts)
