@@ -123,3 +123,30 @@ def test_replay_imports_no_other_command_nor_python_can(tmp_path: Path) -> None:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True
     ).stdout
     assert out.strip() == "['bench.commands.replay']"
+
+
+def test_the_program_exits_with_mains_code_its_objects_frozen_for_the_exit(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import gc
+
+    from bench.cli import program
+
+    monkeypatch.setattr(sys, "argv", ["bench", "replay", str(tmp_path / "missing.log")])
+    try:
+        assert program() == 2
+        assert gc.get_freeze_count() > 0  # the exit's collection has nothing left to walk
+    finally:
+        gc.unfreeze()
+    err = capsys.readouterr().err
+    assert err.startswith("bench: error: ") and "missing.log" in err and err.count("\n") == 1
+
+
+def test_python_dash_m_bench_is_the_program(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "bench", "replay", str(tmp_path / "missing.log")],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2
+    assert done.stderr.startswith("bench: error: ") and done.stderr.count("\n") == 1
