@@ -174,9 +174,10 @@ def kernel_is_ready() -> bool:
     numba's disk cache, valid for this machine and these sources: starting needs no compile.
     (The cache index is keyed by signature and the target machine's magic; numba returns
     no entries for a source changed since, and kernel_cache drops stale ones at import.)"""
-    from bench.fusion import isolation, joint_kernel
+    from bench.fusion import isolation, joint_kernel, speed_ref
 
-    return all(_is_ready(k) for k in (joint_kernel.run, *isolation.KERNELS))
+    kernels = (joint_kernel.run, *isolation.KERNELS, *speed_ref.KERNELS)
+    return all(_is_ready(k) for k in kernels)
 
 
 def _is_ready(kernel: Any) -> bool:

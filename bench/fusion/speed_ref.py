@@ -37,15 +37,27 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from bench.config import EstimatorSettings
 from bench.fusion.isolation import NEVER
 from bench.fusion.kalman import SpeedKalman
 from bench.records.board import SPEED_DTYPE
-from bench.records.samples import MAX_BRIDGE_TICKS
+from bench.records.samples import MAX_BRIDGE_TICKS, SAMPLE_DTYPE
 from protocol.layout import TICK_S, TS_WRAP
 
 _INF = math.inf
+
+
+@njit(cache=True)
+def _leaky_min_run(x, clock_s, rho, base, out):  # type: ignore[no-untyped-def]
+    run = base
+    for i in range(len(x)):
+        drift = rho * clock_s[i]
+        if math.isfinite(x[i]):
+            run = min(run, x[i] - drift)
+        out[i] = drift + run if math.isfinite(run) else math.nan
+    return run
 
 
 def leaky_min(
@@ -56,20 +68,44 @@ def leaky_min(
     Computed as rho*clock_i + running min of (x_j - rho*clock_j): exact (min does not
     round), so the same whatever the batching. ``base`` carries the running min.
     """
-    if len(x) == 0:
-        return np.zeros(0), base
-    drift = rho * clock_s
-    y = x - drift  # non-finite exactly where x is (clock_s is finite)
-    if not np.isfinite(y).all():
-        y[~np.isfinite(x)] = _INF
-    y[0] = min(y[0], base)
-    run = np.minimum.accumulate(y, out=y)
-    last = float(run[-1])
-    if math.isfinite(run[0]) and math.isfinite(last):  # non-increasing: finite throughout
-        return np.add(drift, run, out=drift), last
-    with np.errstate(invalid="ignore"):
-        out = np.where(np.isfinite(run), drift + run, np.nan)
-    return out, last
+    out = np.empty(len(x))
+    last = _leaky_min_run(_f8(x), _f8(clock_s), rho, base, out)
+    return out, float(last)
+
+
+@njit(cache=True)
+def _align(b, x, seq, rho, state, pending_seq, board_off, anchors):  # type: ignore[no-untyped-def]
+    """Board offsets per sample (from the running min ``state[0]``), and the anchor of each
+    buffered frame: the first sample whose running max of seq (from ``state[1]``) exceeds
+    the frame's seq, or len(b). Returns how many frames anchor in this batch."""
+    state[0] = _leaky_min_run(x, b, rho, state[0], board_off)
+    run_max, j, n = state[1], 0, len(b)
+    for i in range(n):
+        run_max = max(run_max, seq[i])
+        while j < len(pending_seq) and pending_seq[j] < run_max:
+            anchors[j] = i
+            j += 1
+    state[1] = run_max
+    anchors[j:] = n
+    return j
+
+
+@njit(cache=True)
+def _expand(b, anchors, acc, when, still, ok, coast_s, out):  # type: ignore[no-untyped-def]
+    """a_ref per sample from the newest frame it applies (index 0: the one applied before
+    this batch, k: the k-th new one, from its anchor on); NaN once older than coast_s."""
+    j = 0
+    for i in range(len(b)):
+        while j < len(anchors) and anchors[j] <= i:
+            j += 1
+        v = 0.0 if still[j] else acc[j]
+        if not (ok[j] or still[j]):
+            v = math.nan
+        out[i] = v if b[i] - when[j] <= coast_s else math.nan  # stale, or no frame yet
+
+
+def _f8(x: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(x, dtype=np.float64)
 
 
 def _plausible(step_ticks: np.ndarray) -> np.ndarray:
@@ -86,8 +122,8 @@ class ReferenceAcceleration:
         self.rho = settings.clock_drift_ppm * 1e-6
         self._pending = np.zeros(0, dtype=SPEED_DTYPE)  # buffered, not yet applied
         self._coast_s = settings.coast_s
-        self._max_seq = -1  # R: largest sample seq so far
-        self._board_base = _INF  # running min for the board offset
+        # the running min for the board offset, and R, the largest sample seq so far
+        self._state = np.array([_INF, -1.0])
         self._odo_base = _INF  # running min for the odometer offset
         self._started = False
         self._restart = np.zeros(0, dtype=bool)
@@ -102,6 +138,8 @@ class ReferenceAcceleration:
         # frames applied by the last push (anchor index, board time measured, speed m/s,
         # restart, standstill), for the joint filter
         self.applied: tuple[np.ndarray, ...] | None = None
+        self.push(np.zeros(0, SAMPLE_DTYPE))  # compile or load the loops now, not live
+        leaky_min(np.zeros(0), np.zeros(0), self.rho, _INF)
 
     def buffer(self, speeds: np.ndarray) -> None:
         """Keep this step's SPEED_REF frames until samples may apply them."""
@@ -112,34 +150,29 @@ class ReferenceAcceleration:
     def push(self, samples: np.ndarray) -> np.ndarray:
         """a_ref (m/s^2, NaN = unavailable) for each sample, in order."""
         b = samples["ticks"] * TICK_S  # board time, s
-        board_off, self._board_base = leaky_min(samples["t"] - b, b, self.rho, self._board_base)
-        run_max = samples["seq"].astype(np.int64)
-        run_max[0] = max(run_max[0], self._max_seq)
-        np.maximum.accumulate(run_max, out=run_max)
-        self._max_seq = int(run_max[-1])
-        # frame j applies from sample anchors[j] on: the first whose R exceeds its seq
-        anchors = np.searchsorted(run_max, self._pending["seq"], side="right")
-        k_new = int(np.searchsorted(anchors, len(b), side="left"))
-        acc, when, still, ok = (np.array([v]) for v in self._last)
+        n, pending = len(b), self._pending
+        board_off, anchors = np.empty(n), np.empty(len(pending), np.int64)
+        seq = np.ascontiguousarray(samples["seq"], dtype=np.int64)
+        x = _f8(samples["t"] - b)
+        pending_seq = np.ascontiguousarray(pending["seq"], dtype=np.int64)
+        k_new = _align(b, x, seq, self.rho, self._state, pending_seq, board_off, anchors)
+        last = self._last
         self.applied = None
         if k_new:
             anchors = anchors[:k_new]
-            frames = self._pending[:k_new]
-            new = self._apply(frames, b[anchors], board_off[anchors])
-            self.applied = (anchors, new[1], frames["speed"] * 1e-3, self._restart, new[2])
-            self._pending = self._pending[k_new:]
-            acc, when, still, ok = (
-                np.concatenate([h, x]) for h, x in zip((acc, when, still, ok), new, strict=True)
-            )
+            frames = pending[:k_new]
+            acc, when, still, ok = self._apply(frames, b[anchors], board_off[anchors])
+            self.applied = (anchors, when, frames["speed"] * 1e-3, self._restart, still)
+            self._pending = pending[k_new:]
             self._last = (float(acc[-1]), float(when[-1]), bool(still[-1]), bool(ok[-1]))
-        # per applied frame (and the one before them), then repeated over the samples it serves
-        value = np.where(still, 0.0, acc)
-        value[~(ok | still)] = np.nan
-        served = np.diff(np.concatenate(([0], anchors[:k_new], [len(b)])))
-        age = np.repeat(when, served)
-        np.subtract(b, age, out=age)
-        out = np.repeat(value, served)
-        np.copyto(out, np.nan, where=~(age <= self._coast_s))  # stale, or no frame yet (NaN)
+            acc, when, still, ok = (
+                np.concatenate([[h], x]) for h, x in zip(last, (acc, when, still, ok), strict=True)
+            )
+        else:
+            anchors = anchors[:0]
+            acc, when, still, ok = (np.array([v]) for v in last)
+        out = np.empty(n)
+        _expand(b, anchors, acc, when, still, ok, self._coast_s, out)
         return out
 
     # -- internals -------------------------------------------------------------------------
@@ -191,3 +224,7 @@ class ReferenceAcceleration:
         self._odo_ticks = int(odo[-1])
         self._zero_since = int(since[-1]) if zero[-1] else None
         return np.array(acc), when, still, ok
+
+
+KERNELS = (_leaky_min_run, _align, _expand)
+"""The compiled loops of this module (the constructor compiles or loads them)."""
