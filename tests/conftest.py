@@ -29,7 +29,7 @@ def pytest_configure() -> None:
         os.environ.pop(name, None)
     os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="bench-tests-xdg-")
 
-    from bench.fusion.joint import warm_up
+    from bench.fusion.estimator import warm_up
 
     warm_up()
 
