@@ -62,12 +62,14 @@ class _NoteFirstStep(importlib.abc.MetaPathFinder):
         return spec
 
 sys.meta_path.insert(0, _NoteFirstStep())
-from bench.cli import main
-code = main(["replay", *sys.argv[1:], "-q"])
+from bench.cli import program
+sys.argv = ["bench", "replay", *sys.argv[1:], "-q"]
+code = program()
 with open(os.environ["BENCH_TIMES"], "w") as f:
     json.dump({"code": code, "first_step": first[0] if first else None}, f)
 """
-"""The bench's child: ``bench replay ARGS -q`` with the end of its first pipeline step noted.
+"""The bench's child: the ``bench replay ARGS -q`` program with the end of its first pipeline
+step noted.
 ``Pipeline.process`` is wrapped when ``bench replay`` itself imports bench.pipeline.steps
 (an import hook), so the child imports what the command does, in its order."""
 
