@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from tests.test_replay_smooth import GRADIENT, SCENARIO
+from tests.test_replay_smooth import GRADIENT, SCENARIO, channels_toml, emulate_run, uncalibrated
 
 ANGLES = (30.0, 0.0, -30.0)
 DELTA = 0.01  # m/s^2 along the track
@@ -29,7 +28,7 @@ S = G * math.sin(math.atan(GRADIENT / 1000.0))
 OFF_PERMIL = 1000.0 * DELTA * G * G / (G * G - S * S) ** 1.5  # 1.0199
 
 PLAN = """
-scenario = "board.toml"
+scenario = "run.toml"
 
 [plan]
 title = "the smoothed gradient on a 12 permil grade"
@@ -63,17 +62,9 @@ min_fraction = 0.5
 def plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = tmp_path_factory.mktemp("accept_smoothed")
     bias = [DELTA * math.cos(math.radians(a)) for a in ANGLES]
-    channels = "".join(
-        f"[[channels]]\nangle_deg = {a!r}\nbias_mps2 = {b!r}\n"
-        for a, b in zip(ANGLES, bias, strict=True)
-    )
-    (d / "board.toml").write_text(SCENARIO + channels)
+    emulate_run(d, SCENARIO + channels_toml(ANGLES, bias))  # and d/cal.toml as built
     (d / "smoothed.toml").write_text(PLAN)
-    args = ["emulate", str(d / "board.toml"), "--calibration-out", str(d / "cal.toml")]
-    assert main([*args, "--quiet"]) == 0
-    text = (d / "cal.toml").read_text()
-    assert text.count("offset = ") == 3
-    (d / "cal0.toml").write_text(re.sub(r"offset = .*", "offset = 0.0", text))
+    uncalibrated(d)
     return d
 
 

@@ -20,17 +20,14 @@ from mcap.reader import make_reader
 from bench.cli import main
 from bench.mcaplog import schemas as S
 from tests.mcap_js import McapJs, install
-from tests.test_replay_smooth import SCENARIO, WHEEL
+from tests.test_replay_smooth import SCENARIO, WHEEL, emulate_run
 
 NEW = ("gradient_smoothed", "gradient_smoothed_sigma", "model_e", "model_e_sigma", "model_b1")
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("replay_mcap")
-    (d / "run.toml").write_text(SCENARIO)
-    args = ["emulate", str(d / "run.toml"), "--out", str(d / "run.log"), "--quiet"]
-    assert main([*args, "--calibration-out", str(d / "cal.toml")]) == 0
+    d = emulate_run(tmp_path_factory.mktemp("replay_mcap"), SCENARIO)
     replay = ["replay", str(d / "run.log"), "--config", str(d / "cal.toml"), "-q"]
     smooth = ["--smooth", "--mcap", str(d / "s.mcap"), "--parquet", str(d / "s.pq")]
     assert main([*replay, *smooth]) == 0

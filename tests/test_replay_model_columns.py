@@ -22,7 +22,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from bench.cli import main
-from tests.test_replay_smooth import GRADIENT, SCENARIO, WHEEL
+from tests.test_replay_smooth import (
+    GRADIENT,
+    SCENARIO,
+    WHEEL,
+    channels_toml,
+    emulate_run,
+    uncalibrated,
+)
 
 ANGLES = (30.0, 0.0, -30.0)
 BETA = 2e-3  # m/s^2, the bias's length along the unit parity vector
@@ -32,23 +39,12 @@ PARITY = np.cross(_c, _s) / np.linalg.norm(np.cross(_c, _s))  # (-0.447, 0.775, 
 BIAS = BETA * PARITY
 
 
-def _channels() -> str:
-    return "".join(
-        f"[[channels]]\nangle_deg = {float(a)!r}\nbias_mps2 = {float(b)!r}\n"
-        for a, b in zip(ANGLES, BIAS, strict=True)
-    )
-
-
 @pytest.fixture(scope="module")
 def board(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("estimates")
-    (d / "run.toml").write_text(SCENARIO + _channels())
-    args = ["emulate", str(d / "run.toml"), "--out", str(d / "run.log"), "--quiet"]
-    assert main([*args, "--calibration-out", str(d / "cal.toml")]) == 0
-    # the sheet as built less its offsets: the replay does not know the biases
-    text = (d / "cal.toml").read_text()
-    assert text.count("offset = ") == 3
-    (d / "cal0.toml").write_text(re.sub(r"offset = .*", "offset = 0.0", text))
+    d = emulate_run(
+        tmp_path_factory.mktemp("estimates"), SCENARIO + channels_toml(ANGLES, list(BIAS))
+    )
+    uncalibrated(d)  # the sheet as built less its offsets: the replay does not know the biases
     return d
 
 

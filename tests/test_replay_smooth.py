@@ -8,6 +8,7 @@ diameter error (written into the scenario here), and a replay of the same log wi
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -56,13 +57,33 @@ enabled = false  # pinned before the body modes (issue 25): with them 94 % given
 """
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("smooth")
-    (d / "run.toml").write_text(SCENARIO)
+def emulate_run(d: Path, scenario: str) -> Path:
+    """``scenario`` emulated into d/run.log, its calibration sheet as built d/cal.toml."""
+    (d / "run.toml").write_text(scenario)
     args = ["emulate", str(d / "run.toml"), "--out", str(d / "run.log"), "--quiet"]
     assert main([*args, "--calibration-out", str(d / "cal.toml")]) == 0
     return d
+
+
+def channels_toml(angles: tuple[float, ...], biases: list[float]) -> str:
+    """The scenario's three [[channels]] at ``angles`` deg with ``biases`` m/s^2."""
+    return "".join(
+        f"[[channels]]\nangle_deg = {float(a)!r}\nbias_mps2 = {float(b)!r}\n"
+        for a, b in zip(angles, biases, strict=True)
+    )
+
+
+def uncalibrated(d: Path) -> Path:
+    """d/cal0.toml: d/cal.toml with its three offsets zeroed (the biases unknown to it)."""
+    text = (d / "cal.toml").read_text()
+    assert text.count("offset = ") == 3
+    (d / "cal0.toml").write_text(re.sub(r"offset = .*", "offset = 0.0", text))
+    return d / "cal0.toml"
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return emulate_run(tmp_path_factory.mktemp("smooth"), SCENARIO)
 
 
 SLIDING = """
@@ -205,9 +226,7 @@ def test_the_smoother_gives_the_same_bits_whatever_the_batch_cut(run: Path) -> N
 def test_a_sliding_wheel_does_not_reach_the_smoothed_gradient(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    (tmp_path / "run.toml").write_text(SLIDING)
-    args = ["emulate", str(tmp_path / "run.toml"), "--out", str(tmp_path / "run.log"), "--quiet"]
-    assert main([*args, "--calibration-out", str(tmp_path / "cal.toml")]) == 0
+    emulate_run(tmp_path, SLIDING)
     _replay(tmp_path, "slide", "--smooth")
     t = pa_csv.read_csv(tmp_path / "slide.csv")
     g = t["gradient_smoothed_permil"].to_numpy(zero_copy_only=False)
