@@ -30,6 +30,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     d = emulate_run(tmp_path_factory.mktemp("replay_mcap"), SCENARIO)
     replay = ["replay", str(d / "run.log"), "--config", str(d / "cal.toml"), "-q"]
     smooth = ["--smooth", "--mcap", str(d / "s.mcap"), "--parquet", str(d / "s.pq")]
+    smooth += ["--csv", str(d / "s.csv")]
     assert main([*replay, *smooth]) == 0
     assert main([*replay, "--mcap", str(d / "plain.mcap")]) == 0
     return d
@@ -113,3 +114,10 @@ def test_an_mcap_that_cannot_be_written_leaves_no_csv(
     assert main([*args, "--mcap", str(run / "no-such-folder" / "x.mcap")]) == 2
     assert capsys.readouterr().err.startswith("bench: error: cannot write the MCAP log")
     assert not csv.exists() and not list(run.glob(".alone.partial*"))
+
+
+def test_log_export_of_a_smoothed_log_is_the_smoothed_replay_s_csv(run: Path) -> None:
+    """The recorded smoother's columns are exported, not dropped: byte for byte the CSV the
+    replay wrote beside the log."""
+    assert main(["log", "export", str(run / "s.mcap"), "--csv", str(run / "export.csv")]) == 0
+    assert (run / "export.csv").read_bytes() == (run / "s.csv").read_bytes()

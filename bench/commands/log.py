@@ -205,7 +205,15 @@ def export_results(
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
 
     config = load_config(config_path) if config_path else (recorded_config(lg) or load_config(None))
+    from bench.records.columns import RESULTS
+
+    layout = RESULTS
     results = None if recompute else read_results(lg)
+    if results is not None and len(results):
+        from bench.replay.model_columns import LAYOUT, recorded_smoothed
+
+        if (smoothed := recorded_smoothed(lg)) is not None:  # replay --smooth --mcap's
+            results, layout = smoothed, LAYOUT
     if results is not None and not len(results):
         results = None
         print(
@@ -213,9 +221,9 @@ def export_results(
             file=sys.stderr,
         )
     if parquet:
-        sink = parquet_sink(target, results_metadata(config, str(lg.path)))
+        sink = parquet_sink(target, results_metadata(config, str(lg.path)), layout=layout)
     else:
-        sink = csv_sink(target)
+        sink = csv_sink(target, layout=layout)
     try:
         if results is not None:
             sink.put(results)

@@ -13,12 +13,14 @@ estimate, and a Parquet column that stays constant costs a few bytes.
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 
 from bench.fusion.model import state
 from bench.fusion.model.log import Smoothed
-from bench.mcaplog.schemas import Column, columns_for
+from bench.mcaplog.reader import McapLog
+from bench.mcaplog.schemas import RESULT_TOPIC, Column, columns_for
 from bench.records.columns import RESULT_FIELDS, Layout
 from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE
 
@@ -133,3 +135,24 @@ def describe_estimates(smoothed: Smoothed) -> str:
             text += f" moving {float(x.min()):+.3g}..{float(x.max()):+.3g}"
         parts.append(text)
     return "smoother: " + ", ".join(parts)
+
+
+def recorded_smoothed(lg: McapLog) -> np.ndarray | None:
+    """A `bench replay --smooth --mcap` file's results as MODEL_DTYPE rows (None for a file
+    whose results schema has no smoothed gradient: a live run's). A field of a state the
+    file's model did not have is NaN, not the decoder's 0."""
+    cid = lg.channel_id(RESULT_TOPIC)
+    schema = lg.schemas.get(lg.channels[cid].schema_id) if cid is not None else None
+    if schema is None:
+        return None
+    try:
+        props = json.loads(schema.data).get("properties", {})
+    except (ValueError, AttributeError):
+        return None
+    if "gradient_smoothed" not in props:
+        return None
+    rows = lg.table(RESULT_TOPIC, mcap_columns(), MODEL_DTYPE)
+    for name in MODEL_DTYPE.names or ():
+        if name not in (RESULT_DTYPE.names or ()) and name not in props:
+            rows[name] = np.nan
+    return rows
