@@ -19,7 +19,14 @@ import numpy as np
 import pytest
 
 from bench.cli import main
-from tests.test_replay_smooth import GRADIENT, SCENARIO, channels_toml, emulate_run, uncalibrated
+from tests.test_replay_smooth import (
+    GRADIENT,
+    SCENARIO,
+    WHEEL,
+    channels_toml,
+    emulate_run,
+    uncalibrated,
+)
 
 ANGLES = (30.0, 0.0, -30.0)
 DELTA = 0.01  # m/s^2 along the track
@@ -89,6 +96,10 @@ def test_the_board_as_built_passes_its_smoothed_checks(plan: Path) -> None:
     assert got["smoothed gradient availability"]["verdict"] == "pass"
     assert got["smoothed sigma coverage"]["verdict"] == "pass"
     assert "failure" not in _junit(out)["smoothed gradient bias"]
+    # the record keeps the run's estimates: the emulated wheel reads 2 % high
+    wheel = json.loads((out / "record.json").read_text())["run"]["smoother"]
+    e = wheel["wheel_diameter_error_smoothed"]
+    assert abs(e["median"] - WHEEL) <= 2.0 * e["sigma"] and e["unit"] == "1"
 
 
 def test_a_bias_the_calibration_does_not_know_fails_by_the_hand_computed_error(

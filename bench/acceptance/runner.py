@@ -503,7 +503,7 @@ def run_plan(plan: Plan, opts: Options) -> RunOutcome:
         if wants_smoothing(plan.checks):
             from bench.acceptance.smoothing import smoothed_run
 
-            run = smoothed_run(run, out / "run.mcap", config)
+            run = smoothed_run(run, out / "run.mcap", config, info)
         measurements = [run_check(c, run) for c in plan.checks]
         opts.stop.check()  # a signal whose raise a finaliser swallowed
     except KeyboardInterrupt as exc:

@@ -13,16 +13,20 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bench.acceptance.model import RunData
 from bench.config import Config
-from bench.replay.model_columns import MODEL_DTYPE
+from bench.replay.model_columns import MODEL_DTYPE, estimate_summary
 
 
-def smoothed_run(run: RunData, log_path: Path, config: Config) -> RunData:
-    """``run`` with MODEL_DTYPE results: the smoother's columns from ``log_path``."""
+def smoothed_run(
+    run: RunData, log_path: Path, config: Config, info: dict[str, Any] | None = None
+) -> RunData:
+    """``run`` with MODEL_DTYPE results: the smoother's columns from ``log_path``; ``info``
+    (the record's run section) gets the run's estimates under ``smoother``."""
     from bench.replay.smooth import smoothed_rows
     from devices.formats import open_log
 
@@ -31,6 +35,8 @@ def smoothed_run(run: RunData, log_path: Path, config: Config) -> RunData:
         rows = smoothed_rows(source, config)
     finally:
         source.close()
+    if info is not None:
+        info["smoother"] = estimate_summary(rows)
     return dataclasses.replace(run, results=join_by_counter(run.results, rows), _k=None)
 
 

@@ -156,3 +156,24 @@ def recorded_smoothed(lg: McapLog) -> np.ndarray | None:
         if name not in (RESULT_DTYPE.names or ()) and name not in props:
             rows[name] = np.nan
     return rows
+
+
+def estimate_summary(rows: np.ndarray) -> dict[str, dict[str, float | str]]:
+    """Per estimate column of MODEL_DTYPE ``rows``: its median over the run, its median
+    1-sigma, its least and largest value and its unit (what a run's record keeps)."""
+    out: dict[str, dict[str, float | str]] = {}
+    for name in estimate_names():
+        x = rows[f"model_{name}"]
+        sig = rows[f"model_{name}_sigma"]
+        ok = np.isfinite(x)
+        if not ok.any():
+            continue
+        (column,), unit, _ = MODEL_FIELDS[f"model_{name}"]
+        out[column] = {
+            "median": float(np.median(x[ok])),
+            "sigma": float(np.median(sig[ok])),
+            "min": float(x[ok].min()),
+            "max": float(x[ok].max()),
+            "unit": unit,
+        }
+    return out
