@@ -14,15 +14,18 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from bench.fusion.model import state
-from bench.fusion.model.log import Smoothed
-from bench.mcaplog.reader import McapLog
 from bench.mcaplog.schemas import RESULT_TOPIC, Column, columns_for
 from bench.records.columns import RESULT_FIELDS, Layout
 from bench.records.results import RESULT_DTYPE, SMOOTHED_DTYPE
+
+if TYPE_CHECKING:
+    from bench.fusion.model.log import Smoothed
+    from bench.mcaplog.reader import McapLog
 
 MOTION = frozenset({"v", "a", "s", "k"})
 """States of the motion and the track, not columns here: S is the gradient (its own column),
