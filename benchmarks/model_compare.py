@@ -48,11 +48,17 @@ def _replay(sim: Any, config: Any, **prm: float) -> dict[str, Any]:
     rows = np.concatenate(n).astype(np.int64)
     truth = sim.truth["gradient_permil"]
     sm = log.smooth(config, **prm)
+    bp = sim.scenario.body_pitch
     return {
         "today": scores(np.concatenate(signed), rows, truth, np.concatenate(sigma), True),
         "filtered": scores(sm.filtered, rows, truth, sm.filtered_sigma, True),
         "smoothed": scores(sm.smoothed, rows, truth, sm.smoothed_sigma, True),
         "wheel": [sm.wheel_scale, sm.wheel_scale_sigma, sim.scenario.odometer.wheel_diameter_error],
+        "compliance": [
+            sm.compliance_deg_per_mps2,
+            sm.compliance_sigma_deg_per_mps2,
+            bp.compliance_deg_per_mps2 if bp.enabled else 0.0,
+        ],
     }
 
 
@@ -126,7 +132,9 @@ def main(argv: list[str]) -> int:
         cells = [f"{m} {_cells(r[m])}" for m in METHODS]
         e, es, et = r["wheel"]
         wheel = f"E {100 * e:+.2f}+-{100 * es:.2f} % (true {100 * et:+.2f})"
-        print(f"{r['run']}: " + " | ".join(cells) + " | " + wheel)
+        c, cs, ct = r["compliance"]
+        comp = f"C {c:+.3f}+-{cs:.3f} deg/(m/s^2) (true {ct:+.3f})"
+        print(f"{r['run']}: " + " | ".join(cells) + " | " + wheel + " | " + comp)
     print(json.dumps(summary(results), indent=1))
     return 0
 
@@ -134,12 +142,17 @@ def main(argv: list[str]) -> int:
 def markdown(results: list[dict[str, Any]]) -> list[str]:
     """One row per run, RMS / p99 / availability / wrong / coverage of each method."""
     head = "| run | " + " | ".join(f"{m} RMS, p99, avail %, wrong %, cover %" for m in METHODS)
-    lines = [head + " | E found (true) |", "|---" * (len(METHODS) + 2) + "|"]
+    lines = [
+        head + " | E found (true) | C found (true), deg per m/s^2 |",
+        "|---" * (len(METHODS) + 3) + "|",
+    ]
     for r in results:
         cells = [_cells(r[m], ", ") for m in METHODS]
         e, es, et = r["wheel"]
         wheel = f"{100 * e:+.2f} +- {100 * es:.2f} % ({100 * et:+.2f})"
-        lines.append(f"| {r['run']} | " + " | ".join(cells) + f" | {wheel} |")
+        c, cs, ct = r["compliance"]
+        comp = f"{c:+.3f} +- {cs:.3f} ({ct:+.3f})"
+        lines.append(f"| {r['run']} | " + " | ".join(cells) + f" | {wheel} | {comp} |")
     return lines
 
 

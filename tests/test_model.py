@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bench.fusion.model import ekf, linalg, measure, process, smoother, state
-from bench.fusion.model.state import B1, B2, B3, NX, A, E, K, L, P, S, V
+from bench.fusion.model.state import B1, B2, B3, NX, TB, TW, A, C, E, K, L, P, S, V
 
 G = 9.80665
 THETA = np.radians([-30.0, 0.0, 30.0])  # a plausible mounting, not the code's default
@@ -32,12 +32,16 @@ def _x(
     b: tuple[float, float, float] = (1e-3, -2e-3, 5e-4),
     lat: float = 0.0,
     pitch: float = 0.0,
+    comp: float = 0.0,
+    body: tuple[float, float] = (0.0, 0.0),
 ) -> np.ndarray:
     x = np.zeros(NX)
     x[V], x[A], x[S], x[K], x[E] = v, a, s, k, e
     x[B1], x[B2], x[B3] = b
     x[L] = lat
     x[P] = pitch
+    x[C] = comp
+    x[TB], x[TW] = body
     return x
 
 
@@ -51,7 +55,7 @@ def _numeric_jacobian(fn, x: np.ndarray, step: np.ndarray) -> np.ndarray:  # typ
     return np.column_stack(cols)
 
 
-STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5, 1e-6])
+STEP = np.array([1e-4, 1e-5, 1e-6, 1e-8, 1e-6, 1e-6, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6, 1e-6, 1e-5])
 
 
 def test_params_array_follows_the_named_indices() -> None:
@@ -67,17 +71,65 @@ def test_params_array_follows_the_named_indices() -> None:
 def test_f_is_the_motion_and_the_track() -> None:
     x, dt = _x(), 0.01
     # by hand: v + a dt = 12.004, S + K v dt = 0.15 + 2e-4 * 12 * 0.01 = 0.150024
-    out = process.f(x, dt)
+    out = process.f(x, dt, _prm())
     assert out[V] == pytest.approx(12.004, abs=1e-12)
     assert out[S] == pytest.approx(0.150024, abs=1e-12)
-    unchanged = [A, K, E, B1, B2, B3, L, P]
+    unchanged = [A, K, E, B1, B2, B3, L, P, C]
     assert np.array_equal(out[unchanged], x[unchanged])
 
 
 def test_f_jacobian_is_the_finite_difference() -> None:
-    x, dt = _x(), 0.02
-    num = _numeric_jacobian(lambda y: process.f(y, dt), x, STEP)
-    np.testing.assert_allclose(process.jacobian(x, dt), num, rtol=0, atol=1e-9)
+    prm = _prm(pitch_frequency_hz=1.6, pitch_damping=0.2)
+    for x in (_x(), _x(comp=1.5e-3, body=(4e-4, -2e-3)), _x(a=-1.1, comp=3e-3)):
+        for dt in (0.02, 0.3):
+            num = _numeric_jacobian(lambda y, dt=dt: process.f(y, dt, prm), x, STEP)
+            np.testing.assert_allclose(process.jacobian(x, dt, prm), num, rtol=0, atol=1e-9)
+
+
+def _body_ode(tb: float, tw: float, settle: float, wn: float, zeta: float, dt: float) -> tuple:
+    """The body's pitch integrated from the physics, TB'' = wn^2 (settle - TB) - 2 zeta wn TB'
+    (RK4, fine steps): the reference for process.f's closed form."""
+    n = 20000
+    h = dt / n
+
+    def d(y: np.ndarray) -> np.ndarray:
+        return np.array([y[1], wn * wn * (settle - y[0]) - 2.0 * zeta * wn * y[1]])
+
+    y = np.array([tb, tw])
+    for _ in range(n):
+        k1 = d(y)
+        k2 = d(y + 0.5 * h * k1)
+        k3 = d(y + 0.5 * h * k2)
+        k4 = d(y + h * k3)
+        y = y + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return float(y[0]), float(y[1])
+
+
+def test_f_pitches_the_body_as_its_suspension_responds_to_c_a() -> None:
+    fn, zeta = 1.2, 0.25
+    prm = _prm(pitch_frequency_hz=fn, pitch_damping=zeta)
+    wn = 2.0 * math.pi * fn
+    comp, a = math.radians(0.05), 0.9  # the emulator's default compliance, 0.05 deg per m/s^2
+    for body, dt in (((0.0, 0.0), 0.02), ((3e-4, -1e-3), 0.02), ((-2e-4, 5e-3), 0.4)):
+        out = process.f(_x(a=a, comp=comp, body=body), dt, prm)
+        want = _body_ode(body[0], body[1], comp * a, wn, zeta, dt)
+        assert out[TB] == pytest.approx(want[0], rel=0, abs=1e-12)
+        assert out[TW] == pytest.approx(want[1], rel=0, abs=1e-11)
+    # a step of acceleration from rest: the first overshoot, at pi / wd, is
+    # exp(-zeta pi / sqrt(1 - zeta^2)) of the settled C a (by hand 44.4 % at zeta 0.25)
+    wd = wn * math.sqrt(1.0 - zeta * zeta)
+    x = _x(a=a, comp=comp)
+    steps = 400
+    for _ in range(steps):
+        x = process.f(x, math.pi / wd / steps, prm)
+    overshoot = math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2))
+    assert x[TB] / (comp * a) - 1.0 == pytest.approx(overshoot, rel=1e-9)
+    assert x[TB] / (comp * a) - 1.0 == pytest.approx(0.4443, abs=1e-4)
+    # and settles at C a (nose up accelerating: 0.045 deg)
+    for _ in range(300):
+        x = process.f(x, 0.1, prm)
+    assert x[TB] == pytest.approx(comp * a, rel=1e-9)
+    assert math.degrees(x[TB]) == pytest.approx(0.045, rel=1e-9)
 
 
 def test_q_of_the_jerk_is_the_integral_of_white_jerk() -> None:
@@ -123,7 +175,7 @@ def _channels_reference(x: np.ndarray) -> np.ndarray:
     u = x[A] + x[S]
     c = np.sqrt(G**2 - x[S] ** 2)
     w = c + x[V] ** 2 * x[K] / c
-    th = THETA + x[P]  # the body pitched by P turns every axis
+    th = THETA + x[P] + x[TB]  # the body pitched by P + TB turns every axis
     return np.column_stack([np.cos(th), np.sin(th)]) @ np.array([u, w]) + x[[B1, B2, B3]]
 
 
@@ -136,11 +188,21 @@ def test_channels_at_rest_on_a_gradient_read_g_sin_of_alpha_plus_theta() -> None
     x[P] = math.radians(0.02)
     expected = G * np.sin(alpha + THETA + math.radians(0.02))
     np.testing.assert_allclose(measure.channels(x, COS, SIN, _prm()), expected, atol=1e-12)
+    # and by 0.01 deg more on its suspension (an acceleration's): the angles add
+    x[TB] = math.radians(0.01)
+    expected = G * np.sin(alpha + THETA + math.radians(0.03))
+    np.testing.assert_allclose(measure.channels(x, COS, SIN, _prm()), expected, atol=1e-12)
 
 
 def test_channels_match_the_reference_and_their_jacobian() -> None:
     prm = _prm()
-    for x in (_x(), _x(v=-30.0, s=-0.3, k=-5e-4), _x(v=0.0, k=0.0), _x(pitch=0.004)):
+    for x in (
+        _x(),
+        _x(v=-30.0, s=-0.3, k=-5e-4),
+        _x(v=0.0, k=0.0),
+        _x(pitch=0.004),
+        _x(pitch=0.001, comp=2e-3, body=(8e-4, 3e-3)),
+    ):
         np.testing.assert_allclose(
             measure.channels(x, COS, SIN, prm), _channels_reference(x), atol=1e-12
         )
@@ -299,8 +361,8 @@ def test_rts_is_the_dense_least_squares_posterior_of_a_linear_model() -> None:
 @pytest.mark.parametrize(
     "fn,args",
     [
-        (process.f, (_x(), 0.01)),
-        (process.jacobian, (_x(), 0.01)),
+        (process.f, (_x(comp=1e-3, body=(1e-4, 1e-3)), 0.01, _prm())),
+        (process.jacobian, (_x(comp=1e-3), 0.01, _prm())),
         (process.noise, (_x(), 0.01, _prm())),
         (measure.channels, (_x(), COS, SIN, _prm())),
         (measure.channels_jacobian, (_x(), COS, SIN, _prm())),
@@ -319,3 +381,20 @@ def test_products_are_numpy_s() -> None:
     np.testing.assert_allclose(linalg.mv(a, x), a @ x, atol=1e-13)
     p = np.eye(5) + 0.1
     np.testing.assert_allclose(linalg.sandwich(a, p), a @ p @ a.T, atol=1e-13)
+
+
+def test_spd_solve_is_the_inverse_times_b() -> None:
+    rng = np.random.default_rng(4)
+    m = rng.normal(size=(6, 6))
+    spd = m @ m.T + 6 * np.eye(6)
+    b = rng.normal(size=(6, 4))
+    np.testing.assert_allclose(spd @ linalg.spd_solve(spd, b), b, atol=1e-12)
+    np.testing.assert_allclose(linalg.cholesky(spd) @ linalg.cholesky(spd).T, spd, atol=1e-12)
+    # a state known exactly (zero row and column): solved on the others, 0 in its row
+    known = spd.copy()
+    known[2, :] = known[:, 2] = 0.0
+    b[2] = 0.0
+    rest = [0, 1, 3, 4, 5]
+    want = np.zeros_like(b)
+    want[rest] = np.linalg.solve(known[np.ix_(rest, rest)], b[rest])
+    np.testing.assert_allclose(linalg.spd_solve(known, b), want, atol=1e-12)

@@ -80,7 +80,9 @@ def test_the_wheel_diameter_error_is_in_every_row_within_its_two_sigma(table: pa
     sig = _col(table, "wheel_diameter_error_smoothed_sigma")
     assert len(e) == table.num_rows and np.isfinite(e).all()
     assert np.all(np.abs(e - WHEEL) <= 2.0 * sig)
-    assert np.all((sig > 0.0) & (sig < 0.003))  # 0.3 %: the two acceleration phases tell it
+    # 0.6 %: the acceleration phases tell (1 + g C) / (1 + E), and the body's compliance C
+    # only the normal axis (docs/ESTIMATOR.md)
+    assert np.all((sig > 0.0) & (sig < 0.006))
 
 
 def test_each_channel_s_bias_is_found_within_its_two_sigma(table: pa.Table) -> None:

@@ -27,9 +27,10 @@ if TYPE_CHECKING:
     from bench.fusion.model.log import Smoothed
     from bench.mcaplog.reader import McapLog
 
-MOTION = frozenset({"v", "a", "s", "k"})
+MOTION = frozenset({"v", "a", "s", "k", "accel_pitch", "accel_pitch_rate"})
 """States of the motion and the track, not columns here: S is the gradient (its own column),
-speed and acceleration are the odometer's and a_ref's business."""
+speed and acceleration are the odometer's and a_ref's business, and the body's pitch under
+acceleration follows the acceleration (its compliance is the car's estimate)."""
 
 KNOWN: dict[str, tuple[str, str, str]] = {
     "e": (
@@ -51,11 +52,16 @@ KNOWN: dict[str, tuple[str, str, str]] = {
         "rad",
         "the car body's static pitch on its suspension (the load), nose up",
     ),
+    "compliance": (
+        "pitch_compliance_smoothed_rad_per_mps2",
+        "rad/(m/s^2)",
+        "the car body's pitch per m/s^2 of acceleration once settled, nose up accelerating",
+    ),
 }
 """State name -> (value column, unit, meaning). The sigma column is the value column with
 ``_sigma`` before the unit suffix."""
 
-_SUFFIX = {"m/s^2": "_mps2", "s": "_s", "rad": "_rad"}
+_SUFFIX = {"m/s^2": "_mps2", "s": "_s", "rad": "_rad", "rad/(m/s^2)": "_rad_per_mps2"}
 
 
 def estimate_names() -> tuple[str, ...]:
@@ -116,6 +122,7 @@ _SHOWN = {  # state name -> (label, unit shown, factor from SI)
     "b3": ("ch3 bias", "mm/s^2", 1e3),
     "latency": ("odometer latency", "ms", 1e3),
     "pitch": ("body pitch", "deg", 180.0 / np.pi),
+    "compliance": ("pitch compliance", "deg per m/s^2", 180.0 / np.pi),
 }
 
 

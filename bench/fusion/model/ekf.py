@@ -38,8 +38,13 @@ def update(
     s_inv = spd_inverse(mm(jac, ph) + r)
     gain = mm(ph, s_inv)
     x_new = x + mv(gain, nu)
-    ikh = np.eye(len(x)) - mm(gain, jac)
-    p = sandwich(ikh, cov) + sandwich(gain, r)
+    # (I - K H) P (I - K H)^T without forming I - K H: X = P - K (H P), X - (X H^T) K^T,
+    # each product n x n x m (m the rows measured), not n^3
+    gt = gain.T.copy()
+    xm = cov - mm(gain, ph.T.copy())
+    joseph = xm - mm(mm(xm, jac.T.copy()), gt)
+    p = joseph + mm(gain, mm(r, gt))
+    p = 0.5 * (p + p.T)
     nis = 0.0
     s_nu = mv(s_inv, nu)
     for i in range(len(nu)):

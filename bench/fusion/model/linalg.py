@@ -40,15 +40,29 @@ def mv(a: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 @jit
 def sandwich(a: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """a p a^T, symmetrised (p symmetric)."""
-    out = mm(mm(a, p), a.T.copy())
-    sym: np.ndarray = 0.5 * (out + out.T)
-    return sym
+    """a p a^T for a symmetric p: X = a p, then the lower triangle of X a^T mirrored (so
+    exactly symmetric, at half the second product's cost); both products skip a's zeros
+    (a transition matrix F is mostly zeros)."""
+    xm = mm(a, p)
+    n, m = a.shape[0], a.shape[1]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(m):
+                ajk = a[j, k]
+                if ajk != 0.0:
+                    acc += xm[i, k] * ajk
+            out[i, j] = acc
+            out[j, i] = acc
+    return out
 
 
 @jit
-def spd_inverse(s: np.ndarray) -> np.ndarray:
-    """S^-1 of a symmetric positive definite S, by its Cholesky factor L (S = L L^T)."""
+def cholesky(s: np.ndarray) -> np.ndarray:
+    """The lower-triangular L with L L^T = s (s symmetric positive semi-definite: a state
+    known exactly, as a constant given a zero prior sigma is, has a zero pivot, and its
+    row and column of L stay zero)."""
     m = s.shape[0]
     low = np.zeros((m, m))
     for i in range(m):
@@ -57,9 +71,39 @@ def spd_inverse(s: np.ndarray) -> np.ndarray:
             for k in range(j):
                 acc -= low[i, k] * low[j, k]
             if i == j:
-                low[i, i] = np.sqrt(acc)
-            else:
+                low[i, i] = np.sqrt(acc) if acc > 0.0 else 0.0
+            elif low[j, j] > 0.0:
                 low[i, j] = acc / low[j, j]
+    return low
+
+
+@jit
+def spd_solve(s: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """s^-1 b for a symmetric positive definite s: L y = b, then L^T x = y (cheaper than
+    the inverse and a product when b has as many columns as s). A zero pivot (a state known
+    exactly) gives 0 in its row: the smoother's gain does not move a known state."""
+    low = cholesky(s)
+    m, p = b.shape[0], b.shape[1]
+    y = np.empty((m, p))
+    for c in range(p):
+        for i in range(m):
+            acc = b[i, c]
+            for k in range(i):
+                acc -= low[i, k] * y[k, c]
+            y[i, c] = acc / low[i, i] if low[i, i] > 0.0 else 0.0
+        for i in range(m - 1, -1, -1):
+            acc = y[i, c]
+            for k in range(i + 1, m):
+                acc -= low[k, i] * y[k, c]
+            y[i, c] = acc / low[i, i] if low[i, i] > 0.0 else 0.0
+    return y
+
+
+@jit
+def spd_inverse(s: np.ndarray) -> np.ndarray:
+    """S^-1 of a symmetric positive definite S, by its Cholesky factor L (S = L L^T)."""
+    m = s.shape[0]
+    low = cholesky(s)
     inv_low = np.zeros((m, m))  # L^-1, lower triangular
     for i in range(m):
         inv_low[i, i] = 1.0 / low[i, i]

@@ -53,6 +53,9 @@ class Smoothed:
     states: np.ndarray = field(default_factory=lambda: np.zeros((0, state.NX)))
     states_sigma: np.ndarray = field(default_factory=lambda: np.zeros((0, state.NX)))
     block: int = 1
+    # the body's pitch compliance C (settled pitch per m/s^2, nose up accelerating) and sigma
+    compliance_deg_per_mps2: float = math.nan
+    compliance_sigma_deg_per_mps2: float = math.nan
 
     def describe(self) -> str:
         """One line: what the smoother learnt of the odometer."""
@@ -141,17 +144,23 @@ class ModelLog:
         prm = prm_obj.array()
         accept = np.ones(len(fa), dtype=np.bool_)
         causal_x = causal_p = np.zeros(0)
-        for second in [False] * (PASSES - 1) + [True]:
+        for done in range(1, PASSES + 1):
             t_mid, xp, pp, xf, pf, jac, _ = run.forward(
                 b, y, used, fa, fw, fs, fr, fst, accept, np.cos(th), np.sin(th), prm,
                 x0, p0, block, ODOMETER_GATE, CHANNEL_GATE,
             )  # fmt: skip
-            xs, ps = smoother.rts(xp, pp, xf, pf, jac)
             if not len(causal_x):
                 causal_x, causal_p = xf, pf  # the filter alone: what a live run could give
-            if second or not len(fa):
+            last = done == PASSES or not len(fa)
+            # a pass that only finds the slipping frames needs no smoothed covariance
+            xs, ps = smoother.rts(xp, pp, xf, pf, jac, last)
+            if last:
                 break
-            accept = _consistent(fa // block, fw, fs, t_mid, xs, prm_obj.odometer_noise_mps)
+            found = _consistent(fa // block, fw, fs, t_mid, xs, prm_obj.odometer_noise_mps)
+            if np.array_equal(found, accept):  # another pass would repeat this one
+                xs, ps = smoother.rts(xp, pp, xf, pf, jac, True)
+                break
+            accept = found
         idx = np.arange(n) // block
         few = used.sum(axis=1) < 2
         limit = config.gradient_sigma_limit_permil
@@ -171,6 +180,8 @@ class ModelLog:
             states=xs,
             states_sigma=np.sqrt(np.maximum(np.diagonal(ps, axis1=1, axis2=2), 0.0)),
             block=block,
+            compliance_deg_per_mps2=math.degrees(float(xs[0, state.C])),
+            compliance_sigma_deg_per_mps2=math.degrees(math.sqrt(float(ps[0, state.C, state.C]))),
         )
 
 

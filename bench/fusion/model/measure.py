@@ -8,9 +8,10 @@ changed it, and L whenever the acceleration is not zero.
 
 Channel i, mounted at theta_i in the track's vertical plane, reads
 y_i = cos(theta_i + P) u + sin(theta_i + P) w + b_i with u = a + S, the specific force along
-the track, and w = c + v^2 K / c, c = sqrt(g^2 - S^2), normal to it; P is the body's pitch
-against the track (the board sits on the body) (on a vertical curve of
-radius R the car is pressed down or lifted by v^2 / R, and 1/R = K / c).
+the track, and w = c + v^2 K / c, c = sqrt(g^2 - S^2), normal to it; P + TB is the body's
+pitch against the track (the board sits on the body): the load's and the acceleration's
+(on a vertical curve of radius R the car is pressed down or lifted by v^2 / R, and
+1/R = K / c).
 """
 
 from __future__ import annotations
@@ -20,7 +21,23 @@ import math
 import numpy as np
 
 from bench.fusion.model._jit import jit
-from bench.fusion.model.state import B1, NX, P_G, P_RCH, P_RODO, P_RVU, P_RVW, A, E, K, L, P, S, V
+from bench.fusion.model.state import (
+    B1,
+    NX,
+    P_G,
+    P_RCH,
+    P_RODO,
+    P_RVU,
+    P_RVW,
+    TB,
+    A,
+    E,
+    K,
+    L,
+    P,
+    S,
+    V,
+)  # fmt: skip
 
 
 @jit
@@ -59,11 +76,11 @@ def channels(x: np.ndarray, cos_th: np.ndarray, sin_th: np.ndarray, prm: np.ndar
     u = x[A] + x[S]
     c = math.sqrt(g * g - x[S] * x[S])
     w = c + x[V] * x[V] * x[K] / c
-    cp, sp = math.cos(x[P]), math.sin(x[P])
+    cp, sp = math.cos(x[P] + x[TB]), math.sin(x[P] + x[TB])
     out = np.empty(3)
     for i in range(3):
-        ci = cos_th[i] * cp - sin_th[i] * sp  # cos(theta_i + P)
-        si = sin_th[i] * cp + cos_th[i] * sp  # sin(theta_i + P)
+        ci = cos_th[i] * cp - sin_th[i] * sp  # cos(theta_i + P + TB)
+        si = sin_th[i] * cp + cos_th[i] * sp  # sin(theta_i + P + TB)
         out[i] = ci * u + si * w + x[B1 + i]
     return out
 
@@ -81,7 +98,7 @@ def channels_jacobian(
     dw_ds = -s / c + v * v * k * s / (c * c * c)
     dw_dv = 2.0 * v * k / c
     dw_dk = v * v / c
-    cp, sp = math.cos(x[P]), math.sin(x[P])
+    cp, sp = math.cos(x[P] + x[TB]), math.sin(x[P] + x[TB])
     out = np.zeros((3, NX))
     for i in range(3):
         ci = cos_th[i] * cp - sin_th[i] * sp
@@ -91,6 +108,7 @@ def channels_jacobian(
         out[i, V] = si * dw_dv
         out[i, K] = si * dw_dk
         out[i, P] = -si * u + ci * w
+        out[i, TB] = out[i, P]
         out[i, B1 + i] = 1.0
     return out
 

@@ -169,9 +169,9 @@ def forward(
         tm = 0.5 * (b[lo] + b[hi - 1])
         dt = tm - t_prev
         if dt > 0.0 or k == 0:
-            fj = process.jacobian(x, dt)
+            fj = process.jacobian(x, dt, prm)
             q = process.noise(x, dt, prm)
-            x, cov = predict(process.f(x, dt), fj, cov, q)
+            x, cov = predict(process.f(x, dt, prm), fj, cov, q)
             jac[k] = fj
         else:
             jac[k] = np.eye(NX)

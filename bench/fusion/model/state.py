@@ -13,18 +13,28 @@ B1-3  each channel's bias, m/s^2 (random walk: a drifting channel is a large bia
 L     the odometer's latency beyond the clock mapping, s: it reads v(t - L)
 P     the car body's static pitch on its suspension (the load), rad, nose up: every
       channel's axis turns by it; it changes only while the train stands
+C     the body's pitch compliance, rad per m/s^2: under a steady acceleration a the body
+      settles at C a nose up (traction acts below the body's centre of gravity)
+TB    the body's pitch on its secondary suspension from the acceleration, rad, nose up:
+      the suspension's second-order response (natural frequency, damping) to C a; every
+      channel's axis turns by P + TB
+TW    dTB/dt, rad/s
 ====  ==========================================================================
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
-V, A, S, K, E, B1, B2, B3, L, P = range(10)
-NX = 10
-NAMES = ("v", "a", "s", "k", "e", "b1", "b2", "b3", "latency", "pitch")
+V, A, S, K, E, B1, B2, B3, L, P, C, TB, TW = range(13)
+NX = 13
+NAMES = (
+    "v", "a", "s", "k", "e", "b1", "b2", "b3", "latency", "pitch",
+    "compliance", "accel_pitch", "accel_pitch_rate",
+)  # fmt: skip
 BIASES = (B1, B2, B3)
 
 
@@ -52,6 +62,10 @@ class ModelParams:
     latency_sigma0_s: float = 0.03  # its prior sigma (mean 0), s
     load_pitch_psd: float = 0.0  # random walk of the body's pitch while standing, rad^2 / s
     vibration_tau_s: float = 10.0  # the body's vibration is learnt over this long, s
+    pitch_frequency_hz: float = 1.2  # the body's pitch mode on its secondary suspension, Hz
+    pitch_damping: float = 0.25  # ... and its damping ratio (0 < zeta < 1), 1
+    compliance0_rad_per_mps2: float = 1.75e-3  # prior sigma of C (0.1 deg per m/s^2), rad/(m/s^2)
+    compliance_mean_rad_per_mps2: float = 0.0  # prior mean of C, rad per m/s^2
 
     def array(self) -> np.ndarray:
         """The fields as a float64 array, in the order of the P_* indices below."""
@@ -79,17 +93,22 @@ class ModelParams:
     P_LSIG0,
     P_QP,
     P_VTAU,
-) = range(20)
-NP = 20
+    P_PF,
+    P_PZ,
+    P_C0,
+    P_CM,
+) = range(24)
+NP = 24
 
 
 def initial(
     prm: ModelParams, speed: float = 0.0, grade_s: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Prior state and covariance: the given speed and S, everything else zero."""
+    """Prior state and covariance: the given speed and S, C its prior mean, the rest zero."""
     x = np.zeros(NX)
     x[V] = speed
     x[S] = grade_s
+    x[C] = prm.compliance_mean_rad_per_mps2
     sig = np.zeros(NX)
     sig[V], sig[A], sig[S] = prm.speed0_mps, prm.accel0_mps2, prm.grade0_mps2
     sig[K], sig[E] = prm.grade_rate0_per_m, prm.wheel_scale0
@@ -97,4 +116,8 @@ def initial(
         sig[b] = prm.bias0_mps2
     sig[L] = prm.latency_sigma0_s
     sig[P] = prm.bias0_mps2 / prm.g  # calibration finds the board's angle as well as a bias
+    sig[C] = prm.compliance0_rad_per_mps2
+    # the body may be pitched by an acceleration the run starts in (at rest: by none)
+    sig[TB] = prm.compliance0_rad_per_mps2 * prm.accel0_mps2
+    sig[TW] = 2.0 * math.pi * prm.pitch_frequency_hz * sig[TB]
     return x, np.diag(sig * sig)
