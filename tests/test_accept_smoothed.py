@@ -150,3 +150,14 @@ def test_the_smoothed_columns_join_the_run_s_results_by_sample_counter() -> None
     got = out["gradient_smoothed"]
     assert got[0] == 10.0 and math.isnan(got[1]) and got[2] == 30.0 and got[3] == 40.0
     assert out["model_e"][3] == 0.4
+
+
+def test_a_realtime_run_is_smoothed_from_its_recording(plan: Path) -> None:
+    """The live path (LiveRunner on the virtual bus): the smoother reads run.mcap after the
+    run and its gradient is joined to the live results by counter, as in an emulated run."""
+    out = plan / "realtime"
+    args = ["accept", str(plan / "smoothed.toml"), "--out", str(out), "--no-plots"]
+    assert main([*args, "--realtime", "--speed", "10"]) == 0
+    got = _record(out)
+    assert got["smoothed gradient bias"]["value"] < 0.1
+    assert got["smoothed gradient availability"]["value"] > 0.95
