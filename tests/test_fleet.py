@@ -220,3 +220,9 @@ def test_fleet_smooth_writes_the_smoothed_columns_of_replay_smooth(fleet, tmp_pa
         ):
             col = got[name].to_numpy(zero_copy_only=False)  # nulls -> NaN
             assert col.tobytes() == values.tobytes(), name
+        # logs.parquet's per-log estimates are the medians of the log's per-sample columns
+        for column in ("bias1_smoothed_mps2", "bias3_smoothed_mps2", "body_pitch_smoothed_rad"):
+            sigma = column.replace("_smoothed_", "_smoothed_sigma_")
+            x = got[column].to_numpy(zero_copy_only=False)
+            assert row[sigma] > 0.0
+            assert abs(row[column] - float(np.median(x))) <= 0.01 * row[sigma], column

@@ -117,6 +117,17 @@ def _f(name: str, kind: pa.DataType, unit: str, doc: str) -> pa.Field:
     return pa.field(name, kind, metadata={"unit": unit, "description": doc})
 
 
+def _estimate_fields() -> list[pa.Field]:
+    """The smoother's other estimates (fleet --smooth), one pair per model state by name."""
+    from bench.replay.model_columns import per_log_fields
+
+    out = []
+    for column, sigma, unit, doc in per_log_fields():
+        out.append(_f(column, pa.float64(), unit, f"median over the log of {doc}"))
+        out.append(_f(sigma, pa.float64(), unit, "its median 1-sigma"))
+    return out
+
+
 _I = pa.int64()
 LOGS_SCHEMA = pa.schema(
     [
@@ -156,6 +167,7 @@ LOGS_SCHEMA = pa.schema(
         _f("wheel_diameter_error", pa.float64(), "1",
            "the odometer's wheel-scale error the smoother found (SPEED_REF = (1 + e) v)"),
         _f("wheel_diameter_error_sigma", pa.float64(), "1", "its 1-sigma"),
+        *_estimate_fields(),
         _f("wall_s", pa.float64(), "s", "time the replay took"),
         _f("bench_version", pa.string(), "", "bench version that replayed the log"),
         _f("error", pa.string(), "", "why the log could not be replayed; null when it was"),

@@ -118,6 +118,7 @@ def _replay_into(
     from bench.fleet.summary import SummarySink, summary_row
     from bench.records.columns import RESULTS
     from bench.replay.model_columns import LAYOUT as SMOOTHED
+    from bench.replay.model_columns import per_log_row
     from bench.replay.run import no_frames, replay
     from bench.replay.smooth import SmoothedSinks, smoothing_pass
     from bench.sinks.tables import abort_all, parquet_sink, results_metadata
@@ -158,4 +159,5 @@ def _replay_into(
     if smoothed is not None:
         row["wheel_diameter_error"] = smoothed.wheel_scale
         row["wheel_diameter_error_sigma"] = smoothed.wheel_scale_sigma
+        row.update(per_log_row(smoothed))
     return row

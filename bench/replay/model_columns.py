@@ -168,22 +168,64 @@ def recorded_smoothed(lg: McapLog) -> np.ndarray | None:
     return rows
 
 
+def _summary(x: np.ndarray, sig: np.ndarray, unit: str) -> dict[str, float | str] | None:
+    ok = np.isfinite(x)
+    if not ok.any():
+        return None
+    return {
+        "median": float(np.median(x[ok])),
+        "sigma": float(np.median(sig[ok])),
+        "min": float(x[ok].min()),
+        "max": float(x[ok].max()),
+        "unit": unit,
+    }
+
+
 def estimate_summary(rows: np.ndarray) -> dict[str, dict[str, float | str]]:
     """Per estimate column of MODEL_DTYPE ``rows``: its median over the run, its median
     1-sigma, its least and largest value and its unit (what a run's record keeps)."""
     out: dict[str, dict[str, float | str]] = {}
     for name in estimate_names():
-        x = rows[f"model_{name}"]
-        sig = rows[f"model_{name}_sigma"]
-        ok = np.isfinite(x)
-        if not ok.any():
-            continue
         (column,), unit, _ = MODEL_FIELDS[f"model_{name}"]
-        out[column] = {
-            "median": float(np.median(x[ok])),
-            "sigma": float(np.median(sig[ok])),
-            "min": float(x[ok].min()),
-            "max": float(x[ok].max()),
-            "unit": unit,
-        }
+        got = _summary(rows[f"model_{name}"], rows[f"model_{name}_sigma"], unit)
+        if got is not None:
+            out[column] = got
     return out
+
+
+def block_summary(smoothed: Smoothed) -> dict[str, dict[str, float | str]]:
+    """:func:`estimate_summary` from the smoother's own per-block states (the same medians
+    up to the blocks' weights: a block is a run of samples)."""
+    out: dict[str, dict[str, float | str]] = {}
+    for name in estimate_names():
+        i = state.NAMES.index(name)
+        (column,), unit, _ = MODEL_FIELDS[f"model_{name}"]
+        if len(smoothed.states):
+            got = _summary(smoothed.states[:, i], smoothed.states_sigma[:, i], unit)
+            if got is not None:
+                out[column] = got
+    return out
+
+
+def per_log_fields() -> list[tuple[str, str, str, str]]:
+    """(value column, sigma column, unit, meaning) of each estimate but E (which has its
+    own fields): what `bench fleet --smooth` puts in logs.parquet, medians over the log."""
+    out = []
+    for name in estimate_names():
+        if name == "e":
+            continue
+        (column,), unit, doc = MODEL_FIELDS[f"model_{name}"]
+        (sigma,), _, _ = MODEL_FIELDS[f"model_{name}_sigma"]
+        out.append((column, sigma, unit, doc))
+    return out
+
+
+def per_log_row(smoothed: Smoothed) -> dict[str, float]:
+    """The :func:`per_log_fields` of one smoothed log: each median and median 1-sigma."""
+    got = block_summary(smoothed)
+    row: dict[str, float] = {}
+    for column, sigma, _, _ in per_log_fields():
+        if column in got:
+            row[column] = float(got[column]["median"])
+            row[sigma] = float(got[column]["sigma"])
+    return row
