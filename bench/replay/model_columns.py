@@ -130,21 +130,20 @@ def describe_estimates(smoothed: Smoothed) -> str:
     """One line of the run's estimates but E (which Smoothed.describe gives): each one's
     median over the run and median 1-sigma, "moving" where it spans more than its 2 sigma
     (a drifting channel, a load step)."""
-    if not len(smoothed.states):
-        return ""
+    got = block_summary(smoothed)
     parts = []
     for name in estimate_names():
-        if name == "e":
+        (column,), _, _ = MODEL_FIELDS[f"model_{name}"]
+        if name == "e" or column not in got:
             continue
-        i = state.NAMES.index(name)
         label, unit, factor = _SHOWN.get(name, (name, "", 1.0))
-        x, sig = smoothed.states[:, i] * factor, smoothed.states_sigma[:, i] * factor
-        mid, s = float(np.median(x)), float(np.median(sig))
-        text = f"{label} {mid:+.3g} {unit} (1-sigma {s:.2g})".replace("  ", " ")
-        if float(x.max() - x.min()) > 2.0 * s:
-            text += f" moving {float(x.min()):+.3g}..{float(x.max()):+.3g}"
+        one = {k: float(v) * factor for k, v in got[column].items() if k != "unit"}
+        text = f"{label} {one['median']:+.3g} {unit} (1-sigma {one['sigma']:.2g})"
+        text = text.replace("  ", " ")
+        if one["max"] - one["min"] > 2.0 * one["sigma"]:
+            text += f" moving {one['min']:+.3g}..{one['max']:+.3g}"
         parts.append(text)
-    return "smoother: " + ", ".join(parts)
+    return "smoother: " + ", ".join(parts) if parts else ""
 
 
 def recorded_smoothed(lg: McapLog) -> np.ndarray | None:
