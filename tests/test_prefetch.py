@@ -1,4 +1,5 @@
-"""Read-ahead keeps order, hands the reader's exception to the consumer, and stops early."""
+"""Read-ahead keeps order, hands the reader's exception to the consumer, and stops early;
+a ReadAhead reads from its construction on (a replay reads while its pipeline is built)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from bench.replay.prefetch import prefetch
+from bench.replay.prefetch import ReadAhead, prefetch
 
 
 def test_items_come_in_order() -> None:
@@ -27,20 +28,58 @@ def test_reader_exception_reaches_the_consumer_after_the_items_before_it() -> No
     assert got == [1, 2]
 
 
+def _endless(closed: threading.Event) -> Iterator[int]:
+    """0, 1, 2, ... until closed; then ``closed`` is set."""
+    try:
+        i = 0
+        while True:
+            yield i
+            i += 1
+    finally:
+        closed.set()
+
+
 def test_stopping_early_closes_the_reader() -> None:
     closed = threading.Event()
-
-    def items() -> Iterator[int]:
-        try:
-            i = 0
-            while True:
-                yield i
-                i += 1
-        finally:
-            closed.set()
-
-    it = prefetch(items(), depth=2)
+    it = prefetch(_endless(closed), depth=2)
     assert [next(it) for _ in range(5)] == [0, 1, 2, 3, 4]
     it.close()  # what a `break` out of a for loop does
     assert closed.is_set()
     assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
+
+
+def test_read_ahead_reads_before_it_is_iterated_and_keeps_order() -> None:
+    produced = threading.Event()
+
+    def items() -> Iterator[int]:
+        produced.set()
+        yield from range(10)
+
+    ahead = ReadAhead(items(), depth=4)
+    assert produced.wait(timeout=30)  # nobody iterated yet: the reader thread did it
+    assert list(ahead) == list(range(10))
+
+
+def test_closing_a_read_ahead_never_iterated_stops_its_reader() -> None:
+    closed = threading.Event()
+    ahead = ReadAhead(_endless(closed), depth=2)
+    ahead.close()  # e.g. the pipeline's construction failed
+    assert closed.is_set()
+    assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
+
+
+def test_a_read_ahead_hands_the_reader_failure_over() -> None:
+    def items() -> Iterator[int]:
+        yield 1
+        raise OSError("input/output error")
+
+    got = []
+    ahead = ReadAhead(items())
+    try:
+        for x in ahead:
+            got.append(x)
+    except OSError as exc:
+        assert str(exc) == "input/output error"
+    else:
+        raise AssertionError("the failure was lost")
+    assert got == [1]

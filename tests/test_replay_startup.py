@@ -1,64 +1,13 @@
 """A replay's start overlaps its parts: the log is read while the pipeline is built, the
 estimator's kernels load while the command opens its files, and the joint filter's loop
-lets the reading and the writer run while it computes (issue 29). Behaviour only; the
-times are in benchmarks/replay_process.py."""
+lets the reading and the writer run while it computes (issue 29; the read-ahead's tests
+are in test_prefetch.py). Behaviour only; the times are in benchmarks/replay_process.py."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 import textwrap
-import threading
-from collections.abc import Iterator
-
-from bench.replay.prefetch import ReadAhead
-
-
-def test_read_ahead_reads_before_it_is_iterated_and_keeps_order() -> None:
-    produced = threading.Event()
-
-    def items() -> Iterator[int]:
-        produced.set()
-        yield from range(10)
-
-    ahead = ReadAhead(items(), depth=4)
-    assert produced.wait(timeout=30)  # nobody iterated yet: the reader thread did it
-    assert list(ahead) == list(range(10))
-
-
-def test_closing_a_read_ahead_never_iterated_stops_its_reader() -> None:
-    closed = threading.Event()
-
-    def items() -> Iterator[int]:
-        try:
-            i = 0
-            while True:
-                yield i
-                i += 1
-        finally:
-            closed.set()
-
-    ahead = ReadAhead(items(), depth=2)
-    ahead.close()  # e.g. the pipeline's construction failed
-    assert closed.is_set()
-    assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
-
-
-def test_a_read_ahead_hands_the_reader_failure_over() -> None:
-    def items() -> Iterator[int]:
-        yield 1
-        raise OSError("input/output error")
-
-    got = []
-    ahead = ReadAhead(items())
-    try:
-        for x in ahead:
-            got.append(x)
-    except OSError as exc:
-        assert str(exc) == "input/output error"
-    else:
-        raise AssertionError("the failure was lost")
-    assert got == [1]
 
 
 def test_kernels_in_the_cache_load_in_the_background_and_others_are_left_to_prepare() -> None:
