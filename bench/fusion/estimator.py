@@ -30,10 +30,8 @@ from bench.fusion.joint import JointFilter
 from bench.fusion.least_squares import (
     FULL,
     geometry,
-    magnitude_gradient,
     mask_code,
     solve_channels,
-    solve_full,
 )
 from bench.fusion.speed_ref import ReferenceAcceleration
 from bench.records.events import EVENT_DTYPE
@@ -110,6 +108,7 @@ class Estimator:
         self.isolator = ResidualIsolator(self.geo, config.g, s.residual_limit_mps2, window)
         self.latch = ExclusionLatch(_ticks(s.recover_s))
         self.filter = JointFilter(config, self.geo)
+        solve_channels(np.zeros((3, 0)), np.zeros(0, np.int64), self.geo, self.g)  # load now
         self._named = -1  # the channel the current residual alarm named (-1: none)
         self.log: ModelLog | None = None  # keeps the filter's inputs for the smoother
 
@@ -143,16 +142,10 @@ class Estimator:
         latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
         used = usable & ~latched
         out = np.empty(n, dtype=ESTIMATE_DTYPE)
-        if used.all():
-            u, w = solve_full(acc, self.geo)
-            out["degraded"] = False
-            out["excluded"] = 0
-            code = np.full(n, FULL, dtype=np.int64)
-        else:
-            code = mask_code(used)
-            u, w = solve_channels(np.where(used, acc, 0.0), code, self.geo)
-            out["degraded"] = code != FULL
-            out["excluded"] = _EXCLUDED_OF_MASK[code]
+        code = np.full(n, FULL, dtype=np.int64) if used.all() else mask_code(used)
+        u, w, out["gradient_ls"] = solve_channels(acc, code, self.geo, self.g)
+        out["degraded"] = code != FULL
+        out["excluded"] = _EXCLUDED_OF_MASK[code]
         starts = _exclusion_starts(before, latched, reason)
         if self.log is not None:
             self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied)
@@ -161,7 +154,6 @@ class Estimator:
         out["gradient_sigma"] = fo.sigma
         out["odometer_suspect"] = fo.suspect
         out["coasting"] = fo.coasting
-        out["gradient_ls"] = magnitude_gradient(w, self.g)
         out["u"] = u
         out["w"] = w
         out["a_ref"] = a_ref
@@ -174,9 +166,9 @@ def kernel_is_ready() -> bool:
     numba's disk cache, valid for this machine and these sources: starting needs no compile.
     (The cache index is keyed by signature and the target machine's magic; numba returns
     no entries for a source changed since, and kernel_cache drops stale ones at import.)"""
-    from bench.fusion import isolation, joint_kernel, speed_ref
+    from bench.fusion import isolation, joint_kernel, least_squares, speed_ref
 
-    kernels = (joint_kernel.run, *isolation.KERNELS, *speed_ref.KERNELS)
+    kernels = (joint_kernel.run, *isolation.KERNELS, *speed_ref.KERNELS, *least_squares.KERNELS)
     return all(_is_ready(k) for k in kernels)
 
 
