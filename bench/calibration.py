@@ -42,7 +42,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +73,13 @@ FROZEN_SAMPLES = 5
 """A channel whose code repeats over this many samples while another's changes is stuck
 (:func:`frozen`): with any noise a 24-bit code repeats from one sample to the next about
 once in a thousand samples, five times in a row never."""
+TEMPCO_SIGMA = 1e-4
+TEMPCO_MIN_K = 2.0
+"""speed: where the board's temperature (BOARD_STATUS) spans at least TEMPCO_MIN_K over the
+used blocks, each channel's offset is fitted to move linearly with it, prior 0 +/-
+TEMPCO_SIGMA m/s^2 per K (10 ug/K: the tempco a sheet taken at one temperature cannot
+know; 30 K of it would turn an angle by 0.02 deg and the channels apart). The fitted
+offsets are those at the first used block's temperature."""
 MIN_ACCEL_S = 5.0
 MIN_ACCEL_MPS2 = 0.1
 """speed: the steady blocks must hold this much time (taper-weighted) of acceleration or
@@ -132,6 +139,7 @@ class Recording:
     acc: np.ndarray  # (N, 3) calibrated with the starting config; NaN where not usable
     a_ref: np.ndarray  # the odometer's acceleration (odometer_accel); NaN where unknown
     speed_mps: np.ndarray | None = None  # the latest SPEED_REF speed; NaN where unknown
+    temperature_c: np.ndarray | None = None  # BOARD_STATUS's, smoothed (board_temperature)
 
     @property
     def has_speed_ref(self) -> bool:
@@ -216,12 +224,15 @@ def record(batches: Iterable[SourceBatch], config: Config) -> Recording:
 
     parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     speeds: list[tuple[np.ndarray, np.ndarray]] = []
+    temps: list[tuple[np.ndarray, np.ndarray]] = []
     for step in run_steps(Pipeline(config), batches):
         r = step.results
         if len(r):
             parts.append((r["time_s"], r["acc"], r["seq"], r["code"]))
         if len(step.speed):
             speeds.append((step.speed["seq"], step.speed["speed"] / 1000.0))
+        if len(step.status):
+            temps.append((step.status["seq"], step.status["temperature"].astype(np.float64)))
     if not parts:
         return Recording(np.zeros(0), np.zeros((0, 3)), np.zeros(0), np.zeros(0))
     time_s, acc, seq, code = (np.concatenate(col) for col in zip(*parts, strict=True))
@@ -231,7 +242,28 @@ def record(batches: Iterable[SourceBatch], config: Config) -> Recording:
     else:
         odo_seq, odo_v = np.zeros(0, np.int64), np.zeros(0)
     a, v = odometer_accel(time_s, seq, odo_seq, odo_v)
-    return Recording(time_s, acc, a, v)
+    temperature = None
+    if temps:
+        st_seq, st_t = (np.concatenate(col) for col in zip(*temps, strict=True))
+        anchor = np.searchsorted(seq, st_seq, side="right")
+        keep = anchor < len(seq)
+        if keep.any():
+            temperature = board_temperature(time_s[anchor[keep]], st_t[keep], time_s)
+    return Recording(time_s, acc, a, v, temperature)
+
+
+def board_temperature(t: np.ndarray, whole_c: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The board's temperature at times ``at`` from BOARD_STATUS's whole degrees (at times
+    ``t``): where the reading changes the temperature is passing between the two values,
+    so a line through those crossings (their midpoints) undoes the 1 K steps of a slowly
+    changing temperature; held flat before the first and after the last."""
+    change = np.flatnonzero(np.diff(whole_c) != 0) + 1
+    if not len(change):
+        return np.full(len(at), float(whole_c[0]))
+    tc = 0.5 * (t[change - 1] + t[change])
+    vc = 0.5 * (whole_c[change - 1] + whole_c[change])
+    out: np.ndarray = np.interp(at, tc, vc)
+    return out
 
 
 def frozen(code: np.ndarray) -> np.ndarray:
@@ -360,6 +392,7 @@ class Blocks:
     a: np.ndarray  # mean odometer acceleration
     v2: np.ndarray  # mean squared speed
     x: np.ndarray  # mean distance travelled since the start (m)
+    temp: np.ndarray  # mean board temperature (degC); NaN where unknown
 
 
 def block_means(rec: Recording, keep: np.ndarray) -> Blocks:
@@ -385,6 +418,9 @@ def block_means(rec: Recording, keep: np.ndarray) -> Blocks:
         mean(np.nan_to_num(rec.a_ref[ok]))[full],
         mean(speed[ok] ** 2)[full],
         mean(x[ok])[full],
+        mean(rec.temperature_c[ok])[full]
+        if rec.temperature_c is not None
+        else np.full(int(full.sum()), np.nan),
     )
 
 
@@ -457,6 +493,8 @@ class Solution:
     resid: np.ndarray
     compliance: float = 0.0  # rad per m/s^2
     c_col: int | None = None
+    tempco: np.ndarray = field(default_factory=lambda: np.zeros(3))  # m/s^2 per K
+    d_col: int | None = None
 
 
 def _solve(
@@ -475,6 +513,7 @@ def _solve(
     compliance: tuple[float, float] | None = None,
     pitch: np.ndarray | None = None,
     pitch_steps: list[tuple[int, float]] | None = None,
+    temperature: np.ndarray | None = None,
 ) -> Solution:
     """Gauss-Newton for theta (3) and the offsets marked in fit_offset; alpha per block is a
     nuisance (eliminated by projection) when free_alpha; ``normal_accel`` (c per block) is
@@ -490,7 +529,9 @@ def _solve(
     pseudo-measurement in the normal equations (the fit is the posterior's mode) and in
     the covariance's sandwich, so that where the recording does not determine C it keeps
     its prior's sigma and passes it on to the angles through their correlation with it.
-    ``pitch`` is the body's static pitch per block (rad, known: :func:`load_pitch`), and
+    With ``temperature`` (per block, K from a reference) each channel's offset moves by
+    its own tempco times it, fitted with the prior 0 +/- TEMPCO_SIGMA. ``pitch`` is the
+    body's static pitch per block (rad, known: :func:`load_pitch`), and
     ``pitch_steps`` its changes, (first block after, 1 sigma), whose uncertainty the
     covariance adds. With ``scale_sigma`` the reference's scale k (true a and c = k *
     given, k = 1 +/- scale_sigma) is not fitted but considered: the covariance adds what it
@@ -499,8 +540,11 @@ def _solve(
     nb = len(m)
     off_idx = np.flatnonzero(fit_offset)
     n_par = 3 + len(off_idx)
-    c_col = None
+    c_col = d_col = None
     priors: list[tuple[int, float, float]] = []  # (column, mean, sigma)
+    if temperature is not None:
+        d_col, n_par = n_par, n_par + 3
+        priors += [(d_col + i, 0.0, TEMPCO_SIGMA) for i in range(3)]
     if compliance is not None:
         c_col, n_par = n_par, n_par + 1
         priors.append((c_col, compliance[0], compliance[1]))
@@ -518,8 +562,12 @@ def _solve(
         raise BenchError(f"calibration: {nb} blocks are too few to fit {n_par} parameters")
 
     def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """theta, the offsets per block (B, 3) or (3,), C."""
         b = np.zeros(3)
         b[off_idx] = x[3 : 3 + len(off_idx)]
+        if d_col is not None:
+            assert temperature is not None
+            b = b + temperature[:, None] * x[d_col : d_col + 3]
         return x[:3], b, float(x[c_col]) if c_col is not None else 0.0
 
     def model(alpha: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -553,6 +601,10 @@ def _solve(
             jac[:, i, i] = d_psi[:, i] * sw
         for col, i in enumerate(off_idx.tolist()):
             jac[:, i, 3 + col] = sw
+        if d_col is not None:
+            assert temperature is not None
+            for i in range(3):
+                jac[:, i, d_col + i] = temperature * sw
         if c_col is not None:
             jac[:, :, c_col] = d_psi * (a * sw)[:, None]
         jp, rp = jac, r
@@ -624,10 +676,13 @@ def _solve(
             if j0 < nb:
                 shift = inv @ after[j0]
                 cov = cov + sigma**2 * np.outer(shift, shift)
-    th, b, cc = unpack(x)
+    th, _, cc = unpack(x)
+    b = np.zeros(3)
+    b[off_idx] = x[3 : 3 + len(off_idx)]
     plain = r / sw[:, None]
     rms = math.sqrt(float(np.sum(plain**2)) / (3 * nb))
-    return Solution(th.copy(), b, cov, rms, alpha, plain, cc, c_col)
+    tempco = x[d_col : d_col + 3].copy() if d_col is not None else np.zeros(3)
+    return Solution(th.copy(), b, cov, rms, alpha, plain, cc, c_col, tempco, d_col)
 
 
 def newey_west(scores: np.ndarray, ids: np.ndarray, lags: int) -> np.ndarray:
@@ -834,6 +889,9 @@ def calibrate(
         alpha = np.arctan(table[row, 2] / 1000.0)
     fit_offset = np.full(3, reference != "level")
     weights = taper(ids) if moving else None
+    temperature = None  # K from the first block's, where the board's warmed or cooled
+    if moving and np.isfinite(blocks.temp).all() and np.ptp(blocks.temp) >= TEMPCO_MIN_K:
+        temperature = blocks.temp - blocks.temp[0]
 
     def fit(fit_offset: np.ndarray) -> Solution:
         """The fit; in motion iterated with c = v^2 d(alpha)/dx from its own alphas, and
@@ -857,6 +915,7 @@ def calibrate(
                 (COMPLIANCE_RAD, COMPLIANCE_SIGMA_RAD) if moving else None,
                 pitch if moving else None,
                 pitch_steps if moving else None,
+                temperature,
             )
             if not moving:
                 break

@@ -181,3 +181,17 @@ def test_the_emulators_stuck_fault_leaves_those_samples_out_of_the_recording() -
     assert np.isnan(rec.acc[inside, 2]).all()
     assert np.isfinite(rec.acc[outside, 2]).all()
     assert np.isfinite(rec.acc[:, :2]).all()
+
+
+def test_a_warming_board_whose_offsets_move_with_temperature_stays_within_a_hundredth() -> None:
+    """The hills run on a board warming 15 -> 45 degC (time constant 100 s) whose channels'
+    biases move by +8, -8 and +6 ug per K (the sheet knows them at 15 degC only): 2.4 mg of
+    ch2's bias by the end, which a fixed offset read as ch2 turned 0.019 deg from the
+    others (1.3 of its sigma). Each offset's tempco is fitted (prior 0 +/- 1e-4 m/s^2/K)
+    from BOARD_STATUS's temperature."""
+    tempco = (8e-5, -8e-5, 6e-5)
+    channels = [
+        c | {"bias_tempco_mps2_per_k": k} for c, k in zip(HILLS["channels"], tempco, strict=True)
+    ]
+    board = {"temperature_c": 15, "temperature_end_c": 45.0, "temperature_tau_s": 100.0}
+    assert_within_and_honest(fit_of(HILLS | {"channels": channels, "board": board}))
