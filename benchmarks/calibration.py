@@ -190,7 +190,8 @@ def run_rows(figs: list[Figure]) -> list[list[str]]:
                 f"{e:+.4f} ± {s:.4f}" for e, s in zip(r["error_deg"], r["sigma_deg"], strict=True)
             ]
         else:
-            cells = ["refused: " + r["refused"].removeprefix("calibration: "), "", ""]
+            verdict = "refused" if r.get("calibratable", True) else "not calibratable"
+            cells = [f"{verdict}: " + r["refused"].removeprefix("calibration: "), "", ""]
         rows.append(
             [
                 str(r["seed"]),

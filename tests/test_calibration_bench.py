@@ -46,3 +46,17 @@ def test_runs_from_before_the_calibratable_key_count_as_having_speed_ref() -> No
     figs = {f.key: f for f in figures([old], 1, 1.0, 2)}
     assert figs["calibration_within_speed_ref"].value == 1
     assert figs["calibration_not_calibratable"].value == 0
+
+
+def test_a_run_without_speed_ref_is_shown_as_not_calibratable() -> None:
+    from benchmarks.calibration import run_rows
+
+    runs = [
+        {"seed": 5, "odometer": "absent", "calibratable": False, "within": False,
+         "honest": True, "refused": "calibration: no SPEED_REF in the recording"},
+        {"seed": 6, "odometer": "poor", "calibratable": True, "within": False,
+         "honest": True, "refused": "calibration: the recording does not determine the angles"},
+    ]  # fmt: skip
+    rows = run_rows(figures(runs, 5, 1.0, 2))
+    assert rows[0][2] == "not calibratable: no SPEED_REF in the recording"
+    assert rows[1][2] == "refused: the recording does not determine the angles"
