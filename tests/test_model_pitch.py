@@ -33,26 +33,16 @@ duration_s = 70.0
 sample_rate_hz = 100
 speed_ref = true
 jerk_mps3 = 0.8
-[[track]]
-length_m = 5000.0
-gradient_permil = {GRADIENT}
-[[train]]
-duration_s = 5.0
-[[train]]
-duration_s = 12.0
-accel_mps2 = 1.0
-[[train]]
-duration_s = 8.0
-[[train]]
-duration_s = 12.0
-accel_mps2 = -1.0
-[[train]]
-duration_s = 5.0
-[[train]]
-duration_s = 12.0
-accel_mps2 = 0.8
-[[train]]
-duration_s = 16.0
+track = [{{ length_m = 5000.0, gradient_permil = {GRADIENT} }}]
+train = [
+    {{ duration_s = 6.0 }},
+    {{ duration_s = 11.0, accel_mps2 = 1.0 }},
+    {{ duration_s = 9.0 }},
+    {{ duration_s = 13.0, accel_mps2 = -0.9 }},
+    {{ duration_s = 4.0 }},
+    {{ duration_s = 13.0, accel_mps2 = 0.8 }},
+    {{ duration_s = 14.0 }},
+]
 [odometer]
 lag_s = 0.03
 noise_mps = 0.005
@@ -119,4 +109,4 @@ def test_the_body_pitch_stays_out_of_the_smoothed_gradient(run) -> None:  # type
     # 0.1 deg per m/s^2 at 1 m/s^2 is 1.75 permil of pitch at each change of acceleration
     assert given.mean() > 0.995
     assert float(np.sqrt(np.mean(err**2))) < 0.03
-    assert float(np.abs(err).max()) < 0.2
+    assert float(np.abs(err).max()) < 0.1  # 0.18 with C held at 0
