@@ -287,6 +287,23 @@ def test_joseph_update_equals_the_standard_form_for_the_optimal_gain() -> None:
     np.testing.assert_allclose(got_p, cov - gain @ s @ gain.T, atol=1e-10)
 
 
+def test_one_measurement_update_equals_the_standard_form() -> None:
+    # the odometer's update takes its own scalar path: the same posterior as the textbook
+    rng = np.random.default_rng(8)
+    m = rng.normal(size=(NX, NX))
+    cov = m @ m.T + np.eye(NX)
+    jac = np.zeros((1, NX))
+    jac[0, [V, A, E, L]] = rng.normal(size=4)
+    x, z, hx, r = rng.normal(size=NX), np.array([0.7]), np.array([0.2]), np.array([[0.05]])
+    got_x, got_p, nis = ekf.update(x, cov, z, hx, jac, r)
+    s = float((jac @ cov @ jac.T + r)[0, 0])
+    gain = (cov @ jac.T / s)[:, 0]
+    np.testing.assert_allclose(got_x, x + gain * 0.5, atol=1e-12)
+    np.testing.assert_allclose(got_p, cov - s * np.outer(gain, gain), atol=1e-10)
+    assert np.array_equal(got_p, got_p.T)
+    assert nis == pytest.approx(0.25 / s, rel=1e-12)
+
+
 def test_predict_propagates_the_covariance() -> None:
     jac = np.array([[1.0, 0.5], [0.0, 1.0]])
     cov = np.array([[1.0, 0.0], [0.0, 2.0]])
@@ -381,6 +398,7 @@ def test_products_are_numpy_s() -> None:
     np.testing.assert_allclose(linalg.mv(a, x), a @ x, atol=1e-13)
     p = np.eye(5) + 0.1
     np.testing.assert_allclose(linalg.sandwich(a, p), a @ p @ a.T, atol=1e-13)
+    np.testing.assert_allclose(linalg.sandwich_dense(a, p), a @ p @ a.T, atol=1e-13)
 
 
 def test_spd_solve_is_the_inverse_times_b() -> None:

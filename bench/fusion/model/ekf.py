@@ -22,6 +22,45 @@ def predict(
 
 
 @jit
+def _update_scalar(
+    x: np.ndarray, cov: np.ndarray, nu: float, h: np.ndarray, r: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`update` for one measurement (the odometer's), in loops without temporaries:
+    the same Joseph form X = P - k (P h)^T, X - (X h) k^T + r k k^T."""
+    n = len(x)
+    ph = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            if h[j] != 0.0:
+                acc += cov[i, j] * h[j]
+        ph[i] = acc
+    s = r
+    for j in range(n):
+        s += h[j] * ph[j]
+    gain = ph / s
+    x_new = x + gain * nu
+    xm = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            xm[i, j] = cov[i, j] - gain[i] * ph[j]
+    xh = np.zeros(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            if h[j] != 0.0:
+                acc += xm[i, j] * h[j]
+        xh[i] = acc
+    p = np.empty((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            a = xm[i, j] - xh[i] * gain[j] + r * gain[i] * gain[j]
+            b = xm[j, i] - xh[j] * gain[i] + r * gain[j] * gain[i]
+            p[i, j] = p[j, i] = 0.5 * (a + b)
+    return x_new, p, nu * nu / s
+
+
+@jit
 def update(
     x: np.ndarray,
     cov: np.ndarray,
@@ -33,6 +72,8 @@ def update(
     """The update by measurement z (expected hx, H = jac, noise R): (x, P, NIS), NIS the
     normalised innovation squared nu^T S^-1 nu (chi-square with len(z) degrees of freedom
     when the model is right: the same number gates and isolates)."""
+    if len(z) == 1:
+        return _update_scalar(x, cov, z[0] - hx[0], jac[0], r[0, 0])
     nu = z - hx
     ph = mm(cov, jac.T.copy())
     s_inv = spd_inverse(mm(jac, ph) + r)

@@ -40,9 +40,22 @@ def mv(a: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 @jit
 def sandwich(a: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """a p a^T for a symmetric p: X = a p, then the lower triangle of X a^T mirrored (so
-    exactly symmetric, at half the second product's cost); both products skip a's zeros
-    (a transition matrix F is mostly zeros)."""
+    """a p a^T for a symmetric p, as a (a p)^T, symmetrised: a is on the left of both
+    products, so a sparse a (a transition matrix F) skips its zeros in both."""
+    out = mm(a, mm(a, p).T.copy())
+    n = out.shape[0]
+    for i in range(n):
+        for j in range(i):
+            mean = 0.5 * (out[i, j] + out[j, i])
+            out[i, j] = mean
+            out[j, i] = mean
+    return out
+
+
+@jit
+def sandwich_dense(a: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """a p a^T for a symmetric p and a dense a (a smoother gain): X = a p, then only the
+    lower triangle of X a^T, mirrored (exactly symmetric, half the second product)."""
     xm = mm(a, p)
     n, m = a.shape[0], a.shape[1]
     out = np.empty((n, n))
@@ -50,9 +63,7 @@ def sandwich(a: np.ndarray, p: np.ndarray) -> np.ndarray:
         for j in range(i + 1):
             acc = 0.0
             for k in range(m):
-                ajk = a[j, k]
-                if ajk != 0.0:
-                    acc += xm[i, k] * ajk
+                acc += xm[i, k] * a[j, k]
             out[i, j] = acc
             out[j, i] = acc
     return out

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.fusion.model._jit import jit
-from bench.fusion.model.linalg import mm, mv, sandwich, spd_solve
+from bench.fusion.model.linalg import mm, mv, sandwich_dense, spd_solve
 
 
 @jit
@@ -39,5 +39,5 @@ def rts(
         gain = spd_solve(p_pred[k + 1], mm(jac[k + 1], p_filt[k])).T.copy()
         xs[k] = x_filt[k] + mv(gain, xs[k + 1] - x_pred[k + 1])
         if covariance:
-            ps[k] = p_filt[k] + sandwich(gain, ps[k + 1] - p_pred[k + 1])
+            ps[k] = p_filt[k] + sandwich_dense(gain, ps[k + 1] - p_pred[k + 1])
     return xs, ps
