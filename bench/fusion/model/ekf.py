@@ -22,19 +22,26 @@ def predict(
 
 
 @jit
+def _times(m: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """m h for a row h of mostly zeros (an odometer row touches four states)."""
+    out = np.zeros(m.shape[0])
+    for i in range(m.shape[0]):
+        acc = 0.0
+        for j in range(len(h)):
+            if h[j] != 0.0:
+                acc += m[i, j] * h[j]
+        out[i] = acc
+    return out
+
+
+@jit
 def _update_scalar(
     x: np.ndarray, cov: np.ndarray, nu: float, h: np.ndarray, r: float
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """:func:`update` for one measurement (the odometer's), in loops without temporaries:
     the same Joseph form X = P - k (P h)^T, X - (X h) k^T + r k k^T."""
     n = len(x)
-    ph = np.zeros(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            if h[j] != 0.0:
-                acc += cov[i, j] * h[j]
-        ph[i] = acc
+    ph = _times(cov, h)
     s = r
     for j in range(n):
         s += h[j] * ph[j]
@@ -44,13 +51,7 @@ def _update_scalar(
     for i in range(n):
         for j in range(n):
             xm[i, j] = cov[i, j] - gain[i] * ph[j]
-    xh = np.zeros(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            if h[j] != 0.0:
-                acc += xm[i, j] * h[j]
-        xh[i] = acc
+    xh = _times(xm, h)
     p = np.empty((n, n))
     for i in range(n):
         for j in range(i + 1):
