@@ -39,13 +39,28 @@ def _endless(closed: threading.Event) -> Iterator[int]:
         closed.set()
 
 
+def _readers() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.name == "read-ahead" and t.is_alive()}
+
+
+def _assert_ended(readers: set[threading.Thread]) -> None:
+    """Each of these reader threads ends once it has seen the stop (only the test's own:
+    another test's reader may still be winding down in this process)."""
+    for t in readers:
+        t.join(timeout=30)
+        assert not t.is_alive()
+
+
 def test_stopping_early_closes_the_reader() -> None:
     closed = threading.Event()
+    others = _readers()
     it = prefetch(_endless(closed), depth=2)
     assert [next(it) for _ in range(5)] == [0, 1, 2, 3, 4]
+    mine = _readers() - others
+    assert len(mine) == 1
     it.close()  # what a `break` out of a for loop does
-    assert closed.is_set()
-    assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
+    assert closed.wait(timeout=30)  # the close reached the reader (a loaded machine is slow)
+    _assert_ended(mine)
 
 
 def test_read_ahead_reads_before_it_is_iterated_and_keeps_order() -> None:
@@ -64,8 +79,8 @@ def test_closing_a_read_ahead_never_iterated_stops_its_reader() -> None:
     closed = threading.Event()
     ahead = ReadAhead(_endless(closed), depth=2)
     ahead.close()  # e.g. the pipeline's construction failed
-    assert closed.is_set()
-    assert not any(t.name == "read-ahead" and t.is_alive() for t in threading.enumerate())
+    assert closed.wait(timeout=30)
+    _assert_ended({ahead._reader})
 
 
 def test_a_read_ahead_hands_the_reader_failure_over() -> None:
