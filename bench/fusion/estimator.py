@@ -17,6 +17,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numba import njit
 
 from bench.config import Config
 from bench.fusion.isolation import (
@@ -66,32 +67,36 @@ def _ticks(seconds: float) -> int:
     return max(round(seconds / TICK_S), 1)
 
 
-def _reasons(single: np.ndarray, stuck: np.ndarray, status: np.ndarray) -> np.ndarray:
+@njit(cache=True)
+def _reasons_run(single, stuck, present, usable, reason):  # type: ignore[no-untyped-def]
     """(3, N) reason per channel and sample, 0 for none; status beats stuck beats residual."""
-    reason = np.zeros(stuck.shape, dtype=np.uint8)
-    hit = np.flatnonzero(single >= 0)
-    if len(hit):
-        reason[single[hit], hit] = _RESIDUAL
-    if stuck.any():
-        np.copyto(reason, _STUCK, where=stuck)
-    if status.any():
-        np.copyto(reason, _STATUS, where=status)
-    return reason
+    for i in range(len(single)):
+        for k in range(3):
+            if present[k, i] and not usable[k, i]:
+                reason[k, i] = _STATUS
+            elif stuck[k, i]:
+                reason[k, i] = _STUCK
+            else:
+                reason[k, i] = _RESIDUAL if single[i] == k else 0
 
 
-def _exclusion_starts(before: np.ndarray, latched: np.ndarray, reason: np.ndarray) -> np.ndarray:
-    """(N,) int8: the channel (1..3) whose exclusion by the residual or as stuck starts at
-    this sample, else 0 (latched flags (3,) before the batch, (3, N) in it, reasons (3, N)):
-    its error grew slowly until then and may sit in the gradient (the lowest channel when
-    several start)."""
-    prev = np.empty_like(latched)
-    prev[:, 0] = before
-    prev[:, 1:] = latched[:, :-1]
-    new = latched & ~prev & ((reason == _RESIDUAL) | (reason == _STUCK))
-    out = np.where(new[2], 3, 0).astype(np.int8)
-    np.copyto(out, 2, where=new[1])
-    np.copyto(out, 1, where=new[0])
-    return out
+@njit(cache=True)
+def _starts_run(before, latched, reason, out):  # type: ignore[no-untyped-def]
+    """(N,) the channel (1..3) whose exclusion by the residual or as stuck starts at this
+    sample, else 0 (latched flags (3,) before the batch, (3, N) in it): its error grew
+    slowly until then and may sit in the gradient (the lowest channel when several start)."""
+    for i in range(len(out)):
+        out[i] = 0
+        for k in range(3):
+            was = latched[k, i - 1] if i else before[k]
+            slow = reason[k, i] == _RESIDUAL or reason[k, i] == _STUCK
+            if latched[k, i] and not was and slow:
+                out[i] = k + 1
+                break
+
+
+KERNELS = (_reasons_run, _starts_run)
+"""This module's compiled loops (the constructor compiles or loads them)."""
 
 
 class Estimator:
@@ -109,6 +114,9 @@ class Estimator:
         self.latch = ExclusionLatch(_ticks(s.recover_s))
         self.filter = JointFilter(config, self.geo)
         solve_channels(np.zeros((3, 0)), np.zeros(0, np.int64), self.geo, self.g)  # load now
+        none = np.zeros((3, 0), np.bool_)
+        _reasons_run(np.zeros(0, np.int8), none, none, none, np.zeros((3, 0), np.int64))
+        _starts_run(np.zeros(3, np.bool_), none, np.zeros((3, 0), np.int64), np.zeros(0, np.int8))
         self._named = -1  # the channel the current residual alarm named (-1: none)
         self.log: ModelLog | None = None  # keeps the filter's inputs for the smoother
 
@@ -137,7 +145,8 @@ class Estimator:
         acc_healthy = acc if cand.all() else np.where(healthy, acc, 0.0)
         residual, single = self.isolator.push(acc_healthy, cand, a_ref)
         single, self._named = carry_named(single, cand, self._named)
-        reason = _reasons(single, stuck, present & ~usable)
+        reason = np.empty((3, n), np.int64)
+        _reasons_run(single, stuck, present, usable, reason)
         before = self.latch.latched.copy()
         latched, events = self.latch.push(ticks, samples["t"], samples["n"], reason)
         used = usable & ~latched
@@ -146,7 +155,8 @@ class Estimator:
         u, w, out["gradient_ls"] = solve_channels(acc, code, self.geo, self.g)
         out["degraded"] = code != FULL
         out["excluded"] = _EXCLUDED_OF_MASK[code]
-        starts = _exclusion_starts(before, latched, reason)
+        starts = np.empty(n, np.int8)
+        _starts_run(before, latched, reason, starts)
         if self.log is not None:
             self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied)
         fo = self.filter.push(ticks * TICK_S, u, w, code, residual, starts, self.a_ref.applied)
@@ -168,7 +178,13 @@ def kernel_is_ready() -> bool:
     no entries for a source changed since, and kernel_cache drops stale ones at import.)"""
     from bench.fusion import isolation, joint_kernel, least_squares, speed_ref
 
-    kernels = (joint_kernel.run, *isolation.KERNELS, *speed_ref.KERNELS, *least_squares.KERNELS)
+    kernels = (
+        joint_kernel.run,
+        *isolation.KERNELS,
+        *speed_ref.KERNELS,
+        *least_squares.KERNELS,
+        *KERNELS,
+    )
     return all(_is_ready(k) for k in kernels)
 
 
