@@ -33,3 +33,31 @@ def test_the_joint_filter_loop_lets_other_threads_run() -> None:
     from bench.fusion import joint_kernel
 
     assert joint_kernel.run.targetoptions.get("nogil") is True
+
+
+def test_a_replay_that_fails_at_once_ends_only_after_the_kernels_loading(tmp_path) -> None:
+    """A mistake in the arguments ends the command before the background load is done; the
+    command waits for it, so the interpreter never shuts down under a thread inside numba's
+    loader (`python -m bench replay missing.log` ended by SIGSEGV instead of exit 2). In a
+    fresh interpreter: in this one the kernels are loaded already."""
+    code = textwrap.dedent(
+        f"""
+        import argparse, threading
+        from bench.commands import replay
+        from bench.errors import BenchError
+        args = argparse.Namespace(
+            input={str(tmp_path / "missing.log")!r}, config=None, plan=None, csv=None,
+            parquet=None, mcap=None, compare=False, smooth=False, quiet=True,
+        )
+        try:
+            replay.run(args)
+        except BenchError as exc:
+            print("error:", exc)
+        print("threads:", sorted(t.name for t in threading.enumerate()))
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    error, threads = done.stdout.splitlines()
+    assert error.startswith("error: log file not found") and "missing.log" in error
+    assert threads == "threads: ['MainThread']"

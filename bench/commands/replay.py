@@ -83,7 +83,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from bench.pipeline.warmup import load_in_background
 
-    load_in_background()  # the estimator's kernels load while the files are checked and opened
+    loading = load_in_background()  # the kernels load while the files are checked and opened
+    try:
+        return _replay(args)
+    finally:
+        # a mistake in the arguments ends the command within milliseconds: the interpreter
+        # must not shut down under a thread still inside numba's loader (it crashed with
+        # SIGSEGV instead of exiting 2); after a replay the load is long done
+        loading.join()
+
+
+def _replay(args: argparse.Namespace) -> int:
     from bench.records.columns import RESULTS
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
