@@ -586,13 +586,6 @@ def _solve(
             return v - gn[:, :, None] * np.einsum("ji,jip->jp", gn, v)[:, None, :]
         return v - gn * np.einsum("ji,ji->j", gn, v)[:, None]
 
-    def solve_alpha(alpha: np.ndarray, x: np.ndarray, rounds: int) -> np.ndarray:
-        for _ in range(rounds):
-            r, _, d_alpha = model(alpha, x)
-            grav = d_alpha * sw[:, None]
-            alpha = alpha + np.einsum("ji,ji->j", grav, r) / np.einsum("ji,ji->j", grav, grav)
-        return alpha
-
     hold = np.zeros((n_par, n_par))  # the priors' information, in units of the residuals'
     step = np.zeros(n_par)
     for _ in range(MAX_ITER):
