@@ -28,13 +28,8 @@ from devices.emulator.scenario import (
     parse_scenario,
     scenario_from_dict,
 )
-from devices.emulator.simulation import (
-    ODOMETER_TRUTH_DTYPE,
-    FaultEffect,
-    Simulation,
-    UartStream,
-    simulate,
-)
+from devices.emulator.simulation import Simulation, UartStream, simulate
+from devices.emulator.stream import ODOMETER_TRUTH_DTYPE, FaultEffect
 
 __all__ = [
     "FAULT_KINDS",

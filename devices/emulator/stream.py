@@ -1,45 +1,106 @@
-"""The virtual board's run in time chunks: what :func:`simulate` computes, a chunk of
-sampling instants at a time, so a file of any length is written in bounded memory.
+"""The virtual board's run: the engine's samples -> nominal frames -> frame faults -> bus
+schedule (-> UART packets), a chunk of sampling instants at a time, so a file of any length
+is written in bounded memory; :func:`devices.emulator.simulation.simulate` is the same run
+in one chunk, keeping what each fault did.
 
-The chunks hold, concatenated, exactly the frames, truth and UART bytes of
-``simulate(scenario)`` (tests/test_emulator_stream.py holds them equal bit for bit over the
-fault kinds, with chunks small enough to split every fault window). That rests on:
+The chunks concatenated hold the one-chunk run's frames, truth and UART bytes bit for bit
+(tests/test_emulator_stream.py cuts through every fault window), because:
 
-* the samples come from the one world-to-sensor engine (:mod:`devices.emulator.engine`),
-  which :func:`simulate` runs as a single block and this module block by block; it carries
-  what crosses a block's end (generators, spike pulses, a stuck code);
-* each random draw of the frame faults comes from its own generator (per layer and fault),
-  drawn in frame order, and numpy's generators give the same numbers drawn in pieces as in
-  one call;
-* where :func:`simulate` draws twice from one fault's generator (a CRC fault picks its
-  frames, then the bits it flips; a UART fault picks packets, then corrupts them), the
-  second draw here comes from a copy advanced past the first draw's total, which a first,
-  cheap pass (no sensor values, no payloads) counts;
-* the bus schedule (each frame waits for the previous one) carries its last send time;
-  a reorder fault carries the frames it delayed past the chunk's end into the next chunk.
+* the engine (:mod:`devices.emulator.engine`) carries what crosses a block's end
+  (generators, spike pulses, a stuck code);
+* each fault draws from its own generator (per layer and fault) in frame order, and
+  numpy's generators give the same numbers drawn in pieces as in one call;
+* where one fault draws twice (a CRC fault picks frames, then the bits it flips; a UART
+  fault picks packets, then corrupts them), the one-chunk run draws both from one
+  generator and the chunked run the second from a copy advanced past the first draw's
+  total, which a first, cheap pass (no sensor values, no payloads) counts;
+* the bus schedule carries its last send time; a reorder fault carries the frames it
+  delayed past the chunk's end into the next chunk.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from devices.emulator import faults as fx
-from devices.emulator.board import FrameSet, merge
-from devices.emulator.engine import Engine, sample_us
+from devices.emulator.board import FrameSet, merge, speed_frames, status_frames
+from devices.emulator.body_pitch import scenario_stations
+from devices.emulator.engine import Block, Engine, sample_us
+from devices.emulator.motion import scenario_motion
+from devices.emulator.odometer import quantise_speed, wheel_error
 from devices.emulator.scenario import Fault, Scenario
-from devices.emulator.simulation import (
-    FaultEffect,
-    _speed_stream,
-    _status_stream,
-    _targeted,
-    summary_headline,
-)
 from devices.emulator.stream_carry import ROW_DTYPE, Reorder
+from devices.emulator.thermal import Thermal
 from protocol.frames import FRAME_DTYPE
-from protocol.layout import FRAME_DLC, FrameKind
+from protocol.layout import (
+    FRAME_DLC,
+    SPEED_REF_RATE_HZ,
+    STATUS_RATE_HZ,
+    BoardState,
+    FrameKind,
+)
+
+ODOMETER_TRUTH_DTYPE = np.dtype(
+    [
+        ("time_s", "<f8"),  # the instant the SPEED_REF frame is queued, frames' time base
+        ("measured_s", "<f8"),  # the instant its speed describes (time_s - lag_s)
+        ("train_speed_mps", "<f8"),  # the train's true speed then
+        ("wheel_error_mps", "<f8"),  # wheel slide (< 0) or slip (> 0) then
+        ("reported_mps", "<f8"),  # what the frame carries (noise, quantisation), m/s
+        ("wheel_diameter_error", "<f8"),  # e: the wheel's speed is reported times (1 + e)
+    ]
+)
+"""One row per SPEED_REF frame the odometer sends (delivered or not): what it got wrong."""
+
+_EMPTY = np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FaultEffect:
+    """What one scenario fault did to the output.
+
+    ``frames``: indices into ``Simulation.frames`` (or, for UART faults, into the UART
+    stream's packets) that the fault changed, added (duplicate copies) or moved (reorder).
+    ``removed_uids``: identities (``Simulation.nominal`` rows) of frames it removed.
+    ``samples``: ADC sample indices n it acted on.
+    """
+
+    fault: Fault
+    frames: np.ndarray = field(default_factory=lambda: _EMPTY)
+    removed_uids: np.ndarray = field(default_factory=lambda: _EMPTY)
+    samples: np.ndarray = field(default_factory=lambda: _EMPTY)
+
+    @property
+    def count(self) -> int:
+        return len(self.frames) + len(self.removed_uids)
+
+    def describe(self) -> str:
+        parts = []
+        if len(self.frames):
+            verb = {
+                "duplicate": "added",
+                "reorder": "moved",
+                "noise": "broke",
+                "truncation": "broke",
+            }
+            unit = "packets" if self.fault.target == "uart" else "frames"
+            parts.append(f"{verb.get(self.fault.kind, 'changed')} {len(self.frames)} {unit}")
+        if len(self.removed_uids):
+            parts.append(f"removed {len(self.removed_uids)} frames")
+        return f"{self.fault.label}: {', '.join(parts) or 'no effect'}"
+
+
+def summary_headline(sc: Scenario, frames: int, by_kind: Mapping[int, int]) -> str:
+    """The first line of a run's summary: what ran and how many frames of each kind."""
+    return (
+        f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
+        f"{frames} frames ({by_kind.get(FrameKind.ADC, 0)} ADC, "
+        f"{by_kind.get(FrameKind.STATUS, 0)} status, {by_kind.get(FrameKind.SPEED, 0)} speed)"
+    )
+
 
 CHUNK_S = 10.0
 """Seconds of sampling instants per chunk (30 000 frames at 1 kHz: a few MB)."""
@@ -126,9 +187,26 @@ def simulate_chunks(
     yield from _Run(sc, uart, chunk_s, totals, None, counts).chunks()
 
 
+@dataclass
+class Kept:
+    """What the run of the whole scenario in one chunk keeps to say what each fault did
+    (:func:`devices.emulator.simulation.simulate`): nominal rows each fault removed or
+    corrupted, the board's frames as sent on the UART and the payloads they carry."""
+
+    removed: dict[int, np.ndarray] = field(default_factory=dict)  # dropout: nominal rows
+    crc: dict[int, np.ndarray] = field(default_factory=dict)  # nominal frames corrupted (mask)
+    lost: dict[int, np.ndarray] = field(default_factory=dict)  # loss: nominal rows
+    board_uid: np.ndarray = field(default_factory=lambda: _EMPTY)
+    board_send_us: np.ndarray = field(default_factory=lambda: _EMPTY)
+    data: np.ndarray = field(default_factory=lambda: np.zeros((0, 8), dtype=np.uint8))
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=ROW_DTYPE))
+
+
 class _Run:
     """One pass over the run. ``totals`` given: the real pass (it advances the second
-    draws by them); ``count_into`` given: the counting pass (no values, no payloads)."""
+    draws by them); ``count_into`` given: the counting pass (no values, no payloads);
+    ``kept`` given: the whole run as one chunk, whose second draws follow the first on
+    the same generator."""
 
     def __init__(
         self,
@@ -138,19 +216,23 @@ class _Run:
         totals: _Totals | None,
         count_into: _Totals | None,
         counts: RunCounts | None,
+        kept: Kept | None = None,
     ) -> None:
-        self.sc, self.uart, self.counts = sc, uart, counts
+        self.sc, self.uart, self.counts, self.kept = sc, uart, counts, kept
         self.counting = count_into is not None
         self.count_into = count_into
         self.engine = Engine(sc, values=not self.counting)
         self.rate = sc.sample_rate_hz
         self.n = sc.n_samples
-        self.step = max(1, round(chunk_s * self.rate))
+        self.step = max(1, self.n if kept else round(chunk_s * self.rate))
         self.start_us = fx.to_us(sc.start_time_s)
         duration_us = fx.to_us(sc.duration_s)
         jumps = [f for f in sc.faults if f.kind == "counter_jump"]
         self.status_all = _status_stream(sc, duration_us, jumps)
-        self.speed_all = _speed_stream(sc, duration_us, jumps)[0] if sc.speed_ref else None
+        self.speed_all: FrameSet | None = None
+        self.odometer = np.zeros(0, dtype=ODOMETER_TRUTH_DTYPE)
+        if sc.speed_ref:
+            self.speed_all, self.odometer = _speed_stream(sc, duration_us, jumps)
         # one generator per (layer, fault), drawn in frame order across the chunks
         seed = sc.seed
         self.pick_rng = {f.index: fx.rng_for(seed, fx.LAYER_FAULT, f.index) for f in sc.faults}
@@ -159,7 +241,7 @@ class _Run:
         self.uart_rows: dict[int, np.random.Generator] = {}
         for f in sc.faults:
             if f.kind == "crc":
-                g = fx.rng_for(seed, fx.LAYER_FAULT, f.index)
+                g = self.pick_rng[f.index] if kept else fx.rng_for(seed, fx.LAYER_FAULT, f.index)
                 g.bit_generator.advance((totals.crc if totals else {}).get(f.index, 0))
                 self.flip_rng[f.index] = g
             if f.target == "uart":
@@ -169,7 +251,9 @@ class _Run:
                 self.uart_rows[f.index] = g
         self.last_send: int | None = None
         self.reorders = [
-            Reorder(f, self.pick_rng[f.index]) for f in sc.faults if f.kind == "reorder"
+            Reorder(f, self.pick_rng[f.index], keep=kept is not None)
+            for f in sc.faults
+            if f.kind == "reorder"
         ]
 
     # -- the chunks ----------------------------------------------------------------------
@@ -181,16 +265,21 @@ class _Run:
             last = k == len(bounds) - 1
             lo = None if k == 0 else int(sample_us(self.rate, np.array([a]))[0]) + latency
             hi = None if last else int(sample_us(self.rate, np.array([b]))[0]) + latency
-            yield self._chunk(a, b, lo, hi, last)
+            block, nominal = self.nominal(a, b, lo, hi)
+            frames, packets = self._frames(nominal, block.hit, a, b - a, last)
+            yield Chunk(frames, block.truth, packets)
 
-    def _chunk(self, a: int, b: int, lo: int | None, hi: int | None, last: bool) -> Chunk:
+    def nominal(self, a: int, b: int, lo: int | None, hi: int | None) -> tuple[Block, FrameSet]:
+        """The engine's block of instants [a, b) and the nominal frames queued in [lo, hi)."""
         block = self.engine.block(a, b)
         parts = [block.adc, _between(self.status_all, lo, hi)]
         if self.speed_all is not None:
             parts.append(_between(self.speed_all, lo, hi))
-        nominal = merge(parts)
-        frames, packets = self._frames(nominal, block.hit, a, b - a, last)
-        return Chunk(frames, block.truth, packets)
+        return block, merge(parts)
+
+    def frames(self, nominal: FrameSet, hit: dict[int, np.ndarray], m: int) -> np.ndarray:
+        """The whole run's frames from its nominal ones (``kept`` filled in)."""
+        return self._frames(nominal, hit, 0, m, True)[0]
 
     def _frames(
         self, nominal: FrameSet, hit: dict[int, np.ndarray], a: int, m: int, last: bool
@@ -203,12 +292,15 @@ class _Run:
         data = nominal.data if self.counting else nominal.data.copy()
         corrupted = np.zeros(n_nom, dtype=bool)
         crc_rows: dict[int, np.ndarray] = {}
+        kept = self.kept
         for f in sc.faults:
             if f.kind == "dropout":
                 sel = _targeted(nominal, f) & alive
                 alive &= ~sel
                 if counts is not None:
                     counts.add(f.index, removed=np.count_nonzero(sel))
+                if kept:
+                    kept.removed[f.index] = np.flatnonzero(sel)
         for f in sc.faults:
             if f.kind == "crc":
                 cand = _targeted(nominal, f) & alive & ~corrupted
@@ -223,6 +315,8 @@ class _Run:
                     fx.flip_bits(data, rows, self.flip_rng[f.index])
                 corrupted |= sel
                 crc_rows[f.index] = sel
+                if kept:
+                    kept.crc[f.index] = sel
         uids = np.flatnonzero(alive)
         tag = np.zeros(len(uids), dtype=np.int64)
         for f in sc.faults:
@@ -240,16 +334,21 @@ class _Run:
         if len(send_us):
             self.last_send = int(send_us[-1])
         packets = b""
+        on_uart = (tag == 0) & (nominal.kind[uids] != FrameKind.SPEED)
         if self.uart:
-            on_uart = (tag == 0) & (nominal.kind[uids] != FrameKind.SPEED)
             packets = self._uart(nominal, data, uids[on_uart], send_us[on_uart])
+        if kept:
+            kept.board_uid, kept.board_send_us, kept.data = uids[on_uart], send_us[on_uart], data
+        rid = np.arange(len(uids), dtype=np.int64)
         for f in sc.faults:
             if f.kind == "loss":
                 sel = fx.pick(
                     _targeted(nominal, f, uids), f.params["probability"], self.pick_rng[f.index]
                 )
+                if kept:
+                    kept.lost[f.index] = uids[sel]
                 keep = ~sel
-                uids, tag, send_us = uids[keep], tag[keep], send_us[keep]
+                uids, tag, rid, send_us = uids[keep], tag[keep], rid[keep], send_us[keep]
                 if counts is not None:
                     counts.add(f.index, removed=np.count_nonzero(sel))
         if counts is not None:
@@ -260,6 +359,7 @@ class _Run:
         rows["kind"] = nominal.kind[uids]
         rows["channel"] = nominal.channel[uids]
         rows["when_us"] = nominal.when_us[uids]
+        rows["uid"], rows["tag"], rows["rid"] = uids, tag, rid
         for stage in self.reorders:
             rows, send_us = stage.feed(rows, send_us, last)
             if counts is not None:
@@ -269,6 +369,8 @@ class _Run:
         frames["id"] = rows["can_id"]
         frames["dlc"] = FRAME_DLC
         frames["data"] = rows["data"]
+        if kept:
+            kept.rows = rows
         if counts is not None:
             counts.frames += len(frames)
             kinds, n = np.unique(rows["kind"], return_counts=True)
@@ -309,44 +411,134 @@ class _Run:
     def _uart(
         self, nominal: FrameSet, data: np.ndarray, board_uid: np.ndarray, send_us: np.ndarray
     ) -> bytes:
-        """This chunk's UART packets with the UART faults (simulate()'s _uart_stream)."""
-        from protocol.uart import encode_packet
-
-        counts = self.counts
-        bodies: list[bytes] = []
-        if not self.counting:
-            ids = nominal.can_id[board_uid].tolist()
-            payload = data[board_uid].tobytes()
-            bodies = [encode_packet(c, payload[8 * k : 8 * k + 8])[:-1] for k, c in enumerate(ids)]
-        broken: set[int] = set()
-        for f in self.sc.faults:
-            if f.target != "uart":
-                continue
-            cand = fx.in_window(send_us, f)
-            p = f.params["probability"]
-            if self.count_into is not None and p < 1.0:
-                self.count_into.uart[f.index] = self.count_into.uart.get(f.index, 0) + int(
-                    np.count_nonzero(cand)
-                )
-            rows = np.flatnonzero(fx.pick(cand, p, self.uart_pick[f.index]))
-            if self.counting:
-                continue
-            rng = self.uart_rows[f.index]
-            for r in rows.tolist():
-                if f.kind == "noise":
-                    bodies[r] = fx.inject_noise(bodies[r], f.params["burst_bytes"], rng)
-                else:
-                    bodies[r] = fx.truncate(bodies[r], rng)
-            broken.update(rows.tolist())
-            if counts is not None:
-                counts.add(f.index, changed=len(rows))
+        """This chunk's UART packets with the UART faults."""
+        if self.count_into is not None:
+            for f in self.sc.faults:
+                if f.target == "uart" and f.params["probability"] < 1.0:
+                    cand = int(np.count_nonzero(fx.in_window(send_us, f)))
+                    self.count_into.uart[f.index] = self.count_into.uart.get(f.index, 0) + cand
+            return b""
+        ids, payload, rngs = nominal.can_id[board_uid], data[board_uid], self.uart_pick
+        bodies, broken = uart_packets(self.sc, ids, payload, send_us, rngs, self.uart_rows)
         out = b"".join(body + b"\x00" for body in bodies)
-        if counts is not None:
-            counts.uart = True
-            counts.packets += len(board_uid)
-            counts.uart_bytes += len(out)
-            counts.packets_broken += len(broken)
+        if self.counts is not None:
+            for index, rows in broken.items():
+                self.counts.add(index, changed=len(rows))
+            self.counts.uart = True
+            self.counts.packets += len(board_uid)
+            self.counts.uart_bytes += len(out)
+            self.counts.packets_broken += len(np.unique(np.concatenate([_EMPTY, *broken.values()])))
         return out
+
+
+def uart_packets(
+    sc: Scenario,
+    can_id: np.ndarray,
+    data: np.ndarray,
+    send_us: np.ndarray,
+    pick: Mapping[int, np.random.Generator],
+    corrupt: Mapping[int, np.random.Generator],
+) -> tuple[list[bytes], dict[int, np.ndarray]]:
+    """The board's frames as UART packets (each without its closing 0x00), with the UART
+    faults: each picks packets by its ``pick`` generator, then breaks them by ``corrupt``
+    (the same generator for a whole run). Also, per fault, the rows it broke."""
+    from protocol.uart import encode_packet
+
+    payload = data.tobytes()
+    ids = can_id.tolist()
+    bodies = [encode_packet(c, payload[8 * k : 8 * k + 8])[:-1] for k, c in enumerate(ids)]
+    broken: dict[int, np.ndarray] = {}
+    for f in sc.faults:
+        if f.target != "uart":
+            continue
+        rows = np.flatnonzero(
+            fx.pick(fx.in_window(send_us, f), f.params["probability"], pick[f.index])
+        )
+        rng = corrupt[f.index]
+        for r in rows.tolist():
+            if f.kind == "noise":
+                bodies[r] = fx.inject_noise(bodies[r], f.params["burst_bytes"], rng)
+            else:
+                bodies[r] = fx.truncate(bodies[r], rng)
+        broken[f.index] = rows
+    return bodies, broken
+
+
+def _jump_offsets(f_list: list[Fault], target: str, when_us: np.ndarray) -> np.ndarray:
+    out = np.zeros(len(when_us), dtype=np.int64)
+    for f in f_list:
+        if f.target in (target, "bus"):
+            out[fx.in_window(when_us, f)] += f.params["jump"]
+    return out
+
+
+def _status_stream(sc: Scenario, duration_us: int, jumps: list[Fault]) -> FrameSet:
+    period = 1_000_000 // STATUS_RATE_HZ
+    when = np.arange(sc.board.status_offset_us, duration_us, period, dtype=np.int64)
+    k = np.arange(len(when), dtype=np.int64)
+    degraded = np.zeros(len(when), dtype=bool)
+    errors = np.full(len(when), sc.board.errors0, dtype=np.int64)
+    for f in sc.faults:
+        if f.kind == "status":
+            degraded |= fx.in_window(when, f)
+        if f.kind in ("status", "saturate"):  # the board notices these and counts them
+            errors += when >= fx.to_us(f.start_s)
+    states = np.where(degraded, BoardState.DEGRADED, BoardState.RUN)
+    counters = sc.board.status_counter0 + k + _jump_offsets(jumps, "status", when)
+    b = sc.board
+    board_t = Thermal(sc, scenario_stations(sc)).board(when / 1e6)
+    temps = np.clip(np.rint(board_t), -128, 127).astype(np.int64)
+    return status_frames(
+        sc.base_id, when, counters, states, sc.sample_rate_hz, temps, b.supply_v, errors
+    )
+
+
+def _speed_stream(
+    sc: Scenario, duration_us: int, jumps: list[Fault]
+) -> tuple[FrameSet, np.ndarray]:
+    """SPEED_REF on the odometer's own clock: it sends every 20 ms of ITS time, so a clock
+    drift changes the true spacing; its timestamps start at its own time0. Also the
+    odometer's truth (ODOMETER_TRUTH_DTYPE) per frame."""
+    od = sc.odometer
+    period_s = 1.0 / SPEED_REF_RATE_HZ
+    rate = 1.0 + od.drift_ppm * 1e-6
+    m_count = max(int((sc.duration_s * rate - od.offset_s) / period_s) + 2, 0)
+    m = np.arange(m_count, dtype=np.int64)
+    when = np.rint((od.offset_s + m * period_s) / rate * 1e6).astype(np.int64)
+    keep = when < duration_us
+    m, when = m[keep], when[keep]
+    measured = when / 1e6 - od.lag_s
+    v = scenario_motion(sc, measured)
+    wheel = wheel_error(
+        od, measured, v.accel_mps2, v.speed_mps, sc.duration_s, fx.rng_for(sc.seed, fx.LAYER_WHEEL)
+    )
+    speed = v.speed_mps + wheel
+    if od.wheel_diameter_error:  # a worn (or wrongly configured) wheel: every turn is
+        speed = speed * (1.0 + od.wheel_diameter_error)  # taken for 1 + e of its length
+    if od.noise_mps:
+        noise = od.noise_mps * fx.rng_for(sc.seed, fx.LAYER_ODOMETER).standard_normal(len(m))
+        # a wheel-pulse odometer at rest reads 0
+        speed = np.where(v.speed_mps == 0.0, 0.0, speed + noise)
+    mm = quantise_speed(speed, od.resolution_mps)
+    ticks = od.time0_ticks + round(od.offset_s * 1e4) + m * (10_000 // SPEED_REF_RATE_HZ)
+    counters = od.counter0 + m + _jump_offsets(jumps, "speed", when)
+    truth = np.zeros(len(m), dtype=ODOMETER_TRUTH_DTYPE)
+    start_us = fx.to_us(sc.start_time_s)
+    truth["time_s"] = (start_us + when) / 1e6
+    truth["measured_s"] = truth["time_s"] - od.lag_s
+    truth["train_speed_mps"] = v.speed_mps
+    truth["wheel_error_mps"] = wheel
+    truth["reported_mps"] = mm / 1000.0
+    truth["wheel_diameter_error"] = od.wheel_diameter_error
+    return speed_frames(when, counters, mm, ticks), truth
+
+
+def _targeted(nominal: FrameSet, f: Fault, rows: np.ndarray | None = None) -> np.ndarray:
+    """Frames (all nominal ones, or the given rows) a frame fault aims at, inside its window."""
+    kind, ch, when = nominal.kind, nominal.channel, nominal.when_us
+    if rows is not None:
+        kind, ch, when = kind[rows], ch[rows], when[rows]
+    return fx.frame_targets(f, kind, ch) & fx.in_window(when, f)
 
 
 def _between(fs: FrameSet, lo: int | None, hi: int | None) -> FrameSet:

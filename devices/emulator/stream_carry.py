@@ -11,9 +11,19 @@ from devices.emulator import faults as fx
 from devices.emulator.scenario import Fault
 
 ROW_DTYPE = np.dtype(
-    [("can_id", "<u4"), ("data", "u1", (8,)), ("kind", "u1"), ("channel", "u1"), ("when_us", "<i8")]
+    [
+        ("can_id", "<u4"),
+        ("data", "u1", (8,)),
+        ("kind", "u1"),
+        ("channel", "u1"),
+        ("when_us", "<i8"),
+        ("uid", "<i8"),  # its row of the chunk's nominal frames
+        ("tag", "<i8"),  # the duplicate fault that made it a copy, 0 for an original
+        ("rid", "<i8"),  # its place in the chunk's bus schedule
+    ]
 )
-"""A frame of the chunked stream before its send time is set, with what faults select by."""
+"""A frame of the chunked stream before its send time is set, with what faults select by
+and where it came from."""
 
 
 class Spikes:
@@ -62,8 +72,9 @@ class Reorder:
     later (fx.reorder_rows), send times stay with the places. Frames whose new place lies
     past what has arrived wait for the next chunk."""
 
-    def __init__(self, fault: Fault, rng: np.random.Generator) -> None:
+    def __init__(self, fault: Fault, rng: np.random.Generator, keep: bool = False) -> None:
         self.fault, self.rng = fault, rng
+        self.picked: list[np.ndarray] | None = [] if keep else None  # rids moved (keep)
         self.depth = fault.params["depth"]
         self.seen = 0  # frames that came in
         self.rows = np.zeros(0, dtype=ROW_DTYPE)  # waiting, with their sort keys
@@ -79,6 +90,8 @@ class Reorder:
         cand = fx.frame_targets(f, kind, ch) & fx.in_window(when, f)
         sel = fx.pick(cand, f.params["probability"], self.rng)
         self.moved += int(np.count_nonzero(sel))
+        if self.picked is not None:
+            self.picked.append(rows["rid"][sel])
         keys = np.arange(self.seen, self.seen + len(rows), dtype=np.float64)
         keys[sel] += self.depth + 0.5
         self.seen += len(rows)
