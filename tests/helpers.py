@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 
 from devices.base import LiveSource, SourceBatch
 from protocol.can_codec import decode, encode_adc, encode_status
@@ -56,6 +57,15 @@ def read_until(
         if batch:
             batches.append(batch)
     return batches
+
+
+def until(cond: Callable[[], bool], what: str = "the condition", timeout: float = 60.0) -> None:
+    """Poll ``cond`` until it holds; a hang guard of ``timeout`` s, not a speed bound."""
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            pytest.fail(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.02)
 
 
 def assemble(

@@ -14,6 +14,7 @@ import pytest
 from bench.cli import main
 from bench.config import Config, load_config
 from bench.mcaplog.recorded import read_metadata, recorded_config
+from tests.helpers import until
 
 REPO = Path(__file__).resolve().parents[1]
 LEVEL_RUN = REPO / "devices" / "scenarios" / "level_run.toml"
@@ -264,18 +265,13 @@ def test_demo_log_replays_to_the_results_shown_live(
 ) -> None:
     """Replaying `bench demo`'s log gave other results than the screen had shown (nominal
     angles instead of the board's): the recorded calibration makes them identical."""
-    import time
 
     import bench.commands.tui as tui_command
 
     def headless(session: object, **app_kwargs: object) -> int:
         session.start()  # type: ignore[attr-defined]
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            snap = session.snapshot(last=1)  # type: ignore[attr-defined]
-            if snap.extra.get("emulator_done"):
-                break
-            time.sleep(0.1)
+        done = session.snapshot  # type: ignore[attr-defined]
+        until(lambda: done(last=1).extra.get("emulator_done"), "the emulator to finish")
         session.stop()  # type: ignore[attr-defined]
         return 0
 

@@ -9,7 +9,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -29,6 +28,7 @@ from devices.cpu_placement import (
     pin_thread,
     restore_thread,
 )
+from tests.helpers import until
 
 ROOT = Path(__file__).resolve().parent.parent
 placeable = pytest.mark.skipif(
@@ -50,14 +50,6 @@ def placement() -> tuple[set[int], set[int], set[int]]:
 def live_runner(channel: str, sinks: tuple[Sink, ...] = ()) -> LiveRunner:
     source = CanBusSource(bus=can.Bus(interface="virtual", channel=channel), owns_bus=True)
     return LiveRunner(source, Config(sample_rate_hz=200), list(sinks)).start()
-
-
-def until(cond: Callable[[], bool], what: str, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}")
-        time.sleep(0.02)
 
 
 @pytest.fixture

@@ -29,6 +29,7 @@ from bench.errors import BenchError
 from bench.live.view import ResultRing
 from bench.pipeline.steps import StepOutput
 from bench.records.results import RESULT_DTYPE
+from tests.helpers import until
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIG = Config(sample_rate_hz=200)
@@ -48,14 +49,6 @@ def board_plan(tmp_path: Path, seconds: float = 30.0, speed: float = 1.0) -> Boa
         mcap=tmp_path / "first.mcap",
         log_dir=tmp_path / "logs",
     )
-
-
-def until(cond: Callable[[], bool], timeout: float = 20.0, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out waiting for {what}")
-        time.sleep(0.05)
 
 
 def complete(path: Path) -> bool:

@@ -16,17 +16,16 @@ from __future__ import annotations
 import itertools
 import os
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import can
-import pytest
 
 from bench.config import Config
 from bench.live.runner import LiveRunner
 from bench.records.events import EventKind
 from devices.emulator import PtyPlayer, scenario_from_dict, simulate, start_virtual_board
+from tests.helpers import until
 
 _ids = itertools.count(1)
 CONFIG = Config(sample_rate_hz=200)
@@ -36,15 +35,6 @@ def sim(seconds: float = 20.0, seed: int = 1) -> Any:
     return simulate(
         scenario_from_dict({"duration_s": seconds, "sample_rate_hz": 200, "seed": seed})
     )
-
-
-def wait_until(cond: Callable[[], bool], timeout: float = 10.0, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return
-        time.sleep(0.02)
-    pytest.fail(f"timed out after {timeout} s waiting for {what}")
 
 
 def event_kinds(runner: LiveRunner) -> list[int]:
@@ -89,11 +79,11 @@ def test_adapter_lost_and_reopened_on_the_virtual_bus(tmp_path: Path) -> None:
     runner, mcap, path = start(source, tmp_path)
     board = start_virtual_board(sim(), channel)
     try:
-        wait_until(lambda: runner.frames_received > 300, what="frames before the fault")
+        until(lambda: runner.frames_received > 300, what="frames before the fault")
         source.bus.shutdown()  # the adapter is gone: the next read fails
-        wait_until(lambda: EventKind.RECONNECT in event_kinds(runner), what="a reconnect event")
+        until(lambda: EventKind.RECONNECT in event_kinds(runner), what="a reconnect event")
         after = runner.frames_received
-        wait_until(lambda: runner.frames_received > after + 300, what="frames after reconnect")
+        until(lambda: runner.frames_received > after + 300, what="frames after reconnect")
     finally:
         board.stop()
     kinds = event_kinds(runner)
@@ -111,15 +101,15 @@ def test_board_leaves_the_bus_and_comes_back(tmp_path: Path) -> None:
     first = start_virtual_board(sim(seed=1), channel)
     second = None
     try:
-        wait_until(lambda: runner.frames_received > 300, what="frames from the first board")
+        until(lambda: runner.frames_received > 300, what="frames from the first board")
         first.stop()  # power cut: its bus is shut down
         time.sleep(0.3)
         sent_before = first.frames_sent
         second = start_virtual_board(sim(seed=2), channel)  # counters start again
-        wait_until(lambda: second.frames_sent > 300, what="frames from the second board")
+        until(lambda: second.frames_sent > 300, what="frames from the second board")
         second.stop()
         total = sent_before + second.frames_sent
-        wait_until(lambda: runner.frames_received >= total, what="every frame sent")
+        until(lambda: runner.frames_received >= total, what="every frame sent")
     finally:
         first.stop()
         if second is not None:
@@ -142,16 +132,16 @@ def test_uart_unplugged_and_replugged_behind_a_stable_link(tmp_path: Path) -> No
     runner, mcap, path = start(source, tmp_path)
     second = None
     try:
-        wait_until(lambda: runner.frames_received > 200, what="UART frames before unplug")
+        until(lambda: runner.frames_received > 200, what="UART frames before unplug")
         first.stop()  # the pty is closed: reads fail with EIO
-        wait_until(lambda: EventKind.DISCONNECT in event_kinds(runner), what="a disconnect event")
+        until(lambda: EventKind.DISCONNECT in event_kinds(runner), what="a disconnect event")
         second = PtyPlayer(stream, s.t0)
         link.unlink()
         os.symlink(second.slave_path, link)
         second.start()
-        wait_until(lambda: EventKind.RECONNECT in event_kinds(runner), what="a reconnect event")
+        until(lambda: EventKind.RECONNECT in event_kinds(runner), what="a reconnect event")
         after = runner.frames_received
-        wait_until(lambda: runner.frames_received > after + 200, what="frames after replug")
+        until(lambda: runner.frames_received > after + 200, what="frames after replug")
     finally:
         first.stop()
         if second is not None:

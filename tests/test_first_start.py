@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import io
 import threading
-import time
-from collections.abc import Callable
 
 import numpy as np
 from rich.console import Console
@@ -28,6 +26,7 @@ from bench.tui.app import BenchApp
 from bench.tui.panels.recording import recording_table
 from devices.base import SourceBatch
 from protocol.layout import STATUS_SELFTEST
+from tests.helpers import until
 from tests.test_tui_support import ListSource, make_frames, screen_text, settled_snapshot
 
 
@@ -67,13 +66,6 @@ class Recorder:
         return concat_events([s.events for s in self.steps])
 
 
-def wait_until(pred: Callable[[], bool], timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.01)
-
-
 def expected(frames: np.ndarray, split: int, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """The same frames through a pipeline with its kernel ready, the tolerance changed after
     frame ``split``: what the log must hold."""
@@ -96,7 +88,7 @@ def test_the_log_gets_the_full_rows_of_everything_received_while_the_kernel_was_
     runner.start()
     held = lambda: getattr(runner.snapshot(last=0).warmup, "held_frames", None)  # noqa: E731
     try:
-        wait_until(lambda: held() == split)
+        until(lambda: held() == split)
         snap = runner.snapshot()
         # the screen: the reference method live, the estimator pending, nothing logged yet
         assert isinstance(snap.warmup, WarmUpStatus) and snap.warmup.held_frames == split
@@ -111,9 +103,9 @@ def test_the_log_gets_the_full_rows_of_everything_received_while_the_kernel_was_
         runner.mark("during the warm-up")
         assert sink.marks == []
         gate.set()  # the kernel is ready
-        wait_until(lambda: runner.snapshot(last=1).warmup is None)
+        until(lambda: runner.snapshot(last=1).warmup is None)
         source.feed(frames[split:])
-        wait_until(lambda: runner.pipeline.seq == len(frames))
+        until(lambda: runner.pipeline.seq == len(frames))
     finally:
         gate.set()
         runner.stop()
@@ -145,7 +137,7 @@ def test_quitting_while_the_kernel_is_prepared_still_logs_every_frame() -> None:
     sink = Recorder()
     runner = LiveRunner(ListSource(frames, chunk=50), Config(), [sink], warm_up=warm)
     runner.start()
-    wait_until(lambda: runner.pipeline.seq == len(frames))
+    until(lambda: runner.pipeline.seq == len(frames))
     runner.stop()
     assert sum(len(s.frames) for s in sink.steps) == len(frames)
     assert np.isfinite(sink.results()["gradient_signed"]).any()
@@ -167,16 +159,14 @@ def test_the_hold_is_bounded_and_what_it_cannot_keep_is_counted_and_logged_as_dr
     runner.start()
     status = lambda: runner.snapshot(last=0).warmup  # noqa: E731
     try:
-        wait_until(
-            lambda: (w := status()) is not None and w.held_frames + w.dropped_frames == split
-        )
+        until(lambda: (w := status()) is not None and w.held_frames + w.dropped_frames == split)
         w = status()
         assert w is not None and w.dropped_frames > 0 and w.held_frames <= bound
         assert runner.frames_dropped == w.dropped_frames
         assert len(runner.snapshot().results) > 300  # the preview went on past the bound
         assert sink.steps == []
         gate.set()
-        wait_until(lambda: runner.snapshot(last=1).warmup is None)
+        until(lambda: runner.snapshot(last=1).warmup is None)
     finally:
         gate.set()
         runner.stop()

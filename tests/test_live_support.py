@@ -15,6 +15,7 @@ from bench.pipeline.stats import Stats
 from bench.records.arrays import concat_records
 from bench.tui.panels.plot import PlotPacer
 from protocol.frames import FRAME_DTYPE
+from tests.helpers import until
 
 values = st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=0, max_size=40)
 
@@ -117,10 +118,7 @@ def test_the_emulated_board_waits_for_the_bench(tmp_path) -> None:  # type: igno
         assert setup.emulator.frames_sent == 0 and not setup.source.read(0.05)
         setup.start_board()
         setup.start_board()  # idempotent
-        deadline = time.monotonic() + 5.0
-        while setup.emulator.frames_sent < 30 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert setup.emulator.frames_sent >= 30
+        until(lambda: setup.emulator.frames_sent >= 30, "30 frames sent")
         assert len(setup.source.read(1.0).frames) > 0
     finally:
         setup.close()

@@ -40,6 +40,7 @@ from bench.pipeline.steps import StepOutput
 from devices.base import SourceBatch
 from protocol.frames import FRAME_DTYPE
 from protocol.layout import Outcome
+from tests.helpers import until
 from tests.test_mcap_support import csv_text, emulated, run_pipeline, synthetic_stream, uart_batches
 
 
@@ -324,9 +325,7 @@ def test_chunks_close_at_least_every_flush_interval(tmp_path: Path) -> None:
     path = tmp_path / "slowrate.mcap"
     sink = McapSink(path, Config(), {}, flush_interval_s=0.2)
     sink.write(StepOutput(frames=stream.frames[:30], outcome=np.zeros(30, np.uint8)))
-    deadline = time.monotonic() + 60.0  # a hang guard: only the timer can flush these
-    while sink.frames_logged < 30 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    until(lambda: sink.frames_logged >= 30, "the flush timer")  # only it can flush these
     assert sink.frames_logged == 30  # flushed by the timer, not by size or close
     with McapLog(path) as lg:  # readable while the writer is still open
         assert lg.truncated and len(lg.read_frames()[0]) == 30
