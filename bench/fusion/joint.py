@@ -61,7 +61,6 @@ def parameters(config: Config) -> np.ndarray:
     p[jl.P_KJUMP] = s.grade_rate_jump
     p[jl.P_UGATE] = 25.0
     p[jl.P_QK_BLIND] = s.blind_grade_rate_psd_per_m
-    p[jl.P_LEARN] = 100.0
     p[jl.P_WBLOCK] = s.w_block_s
     p[jl.P_QB] = s.w_bias_psd
     p[jl.P_B0] = s.w_bias_sigma0_mps2

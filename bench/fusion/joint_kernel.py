@@ -262,9 +262,8 @@ def _sample(  # type: ignore[no-untyped-def]
                 m[M_OK_SINCE] = when
             if m[M_SUSPECT] != 0.0 and when - m[M_OK_SINCE] >= p[P_RECOVER]:
                 m[M_SUSPECT] = 0.0
-        # odometer noise from the innovations within P_LEARN (vibration, coarse
-        # quantisation): rejected ones too, or a gate set too tight would never widen;
-        # a slide's frames soon pass P_LEARN and stay out
+        # odometer noise learnt from the accepted frames' innovations (vibration, coarse
+        # quantisation)
         if moving and accepted:
             e2 = nu * nu - (s_nu - rv)
             m[M_RV] += (e2 - m[M_RV]) / p[P_RV_TAU]
