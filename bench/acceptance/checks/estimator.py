@@ -67,7 +67,10 @@ def _spans(flag: np.ndarray, t: np.ndarray) -> tuple[int, float]:
     return len(starts), float((t[ends] - t[starts]).max())
 
 
-def _suspect(spec: CheckSpec, run: RunData) -> Measurement:
+def check_odometer_suspect(spec: CheckSpec, run: RunData) -> Measurement:
+    """Share of the window's samples with SPEED_REF held suspect: at most (odometer_suspect,
+    a clean odometer) or at least (odometer_flagged, a window where the wheels are known to
+    slide or slip)."""
     sel = in_window(spec, run)
     if not sel.any():
         return judge(spec, None, "the window holds no sample")
@@ -82,17 +85,6 @@ def _suspect(spec: CheckSpec, run: RunData) -> Measurement:
         spans=count,
         longest_s=longest,
     )
-
-
-def check_odometer_suspect(spec: CheckSpec, run: RunData) -> Measurement:
-    """Share of the window's samples with SPEED_REF held suspect (at most: a clean odometer)."""
-    return _suspect(spec, run)
-
-
-def check_odometer_flagged(spec: CheckSpec, run: RunData) -> Measurement:
-    """Share of the window's samples with SPEED_REF held suspect (at least: a window where
-    the wheels are known to slide or slip)."""
-    return _suspect(spec, run)
 
 
 _KINDS: dict[str, Kind] = {
@@ -126,7 +118,7 @@ _KINDS: dict[str, Kind] = {
         summary="share of samples with SPEED_REF rejected as slip/slide (at most)",
     ),
     "odometer_flagged": Kind(
-        check_odometer_flagged,
+        check_odometer_suspect,
         "fraction",
         {
             "min_fraction": Param("number", required=True, lo=0.0, hi=1.0),
