@@ -20,9 +20,9 @@ from devices.emulator.stream import (
     ODOMETER_TRUTH_DTYPE,
     FaultEffect,
     Kept,
+    RunCounts,
     _Run,
     _targeted,
-    summary_headline,
     uart_packets,
 )
 from protocol.layout import FrameKind
@@ -100,20 +100,12 @@ class Simulation:
         return self.uart_stream().data
 
     def summary(self) -> str:
-        sc = self.scenario
         kinds, n = np.unique(self.frame_kind, return_counts=True)
-        by_kind = dict(zip(kinds.tolist(), n.tolist(), strict=True))
-        lines = [summary_headline(sc, len(self.frames), by_kind)]
-        lines += [f"  fault {e.describe()}" for e in self.effects]
-        if self._uart is not None:
-            lines += [f"  fault {e.describe()}" for e in self._uart.effects]
-        else:
-            lines += [
-                f"  fault {f.label}: UART only (the UART stream was not generated)"
-                for f in sc.faults
-                if f.target == "uart"
-            ]
-        return "\n".join(lines)
+        counts = RunCounts(self.scenario, dict(zip(kinds.tolist(), n.tolist(), strict=True)))
+        counts.frames, counts.uart = len(self.frames), self._uart is not None
+        for e in (*self.effects, *(self._uart.effects if self._uart else ())):
+            counts.add(e.fault.index, changed=len(e.frames), removed=len(e.removed_uids))
+        return counts.summary()
 
 
 def simulate(sc: Scenario) -> Simulation:

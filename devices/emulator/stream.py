@@ -93,15 +93,6 @@ class FaultEffect:
         return f"{self.fault.label}: {', '.join(parts) or 'no effect'}"
 
 
-def summary_headline(sc: Scenario, frames: int, by_kind: Mapping[int, int]) -> str:
-    """The first line of a run's summary: what ran and how many frames of each kind."""
-    return (
-        f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
-        f"{frames} frames ({by_kind.get(FrameKind.ADC, 0)} ADC, "
-        f"{by_kind.get(FrameKind.STATUS, 0)} status, {by_kind.get(FrameKind.SPEED, 0)} speed)"
-    )
-
-
 CHUNK_S = 10.0
 """Seconds of sampling instants per chunk (30 000 frames at 1 kHz: a few MB)."""
 
@@ -120,8 +111,8 @@ class Chunk:
 
 @dataclass
 class RunCounts:
-    """What :meth:`devices.emulator.simulation.Simulation.summary` says, counted as the
-    chunks go by: frames per kind and, per fault, frames changed/added/moved and removed."""
+    """A run's summary, counted as the chunks go by (or from a whole run's FaultEffects):
+    frames per kind and, per fault, frames changed/added/moved and removed."""
 
     scenario: Scenario
     kinds: dict[int, int] = field(default_factory=dict)
@@ -138,19 +129,21 @@ class RunCounts:
         self.removed[index] = self.removed.get(index, 0) + int(removed)
 
     def summary(self) -> str:
-        sc = self.scenario
-        lines = [summary_headline(sc, self.frames, self.kinds)]
+        """What ran, how many frames of each kind and what each fault did, one per line."""
+        sc, kinds = self.scenario, self.kinds
+        lines = [
+            f"{sc.source}: {sc.duration_s:g} s at {sc.sample_rate_hz} Hz, seed {sc.seed}: "
+            f"{self.frames} frames ({kinds.get(FrameKind.ADC, 0)} ADC, "
+            f"{kinds.get(FrameKind.STATUS, 0)} status, {kinds.get(FrameKind.SPEED, 0)} speed)"
+        ]
+        lines += [f"  fault {self._effect(f).describe()}" for f in sc.faults if f.target != "uart"]
         for f in sc.faults:
             if f.target == "uart":
-                continue
-            lines.append(f"  fault {self._effect(f).describe()}")
-        for f in sc.faults:
-            if f.target != "uart":
-                continue
-            if self.uart:
-                lines.append(f"  fault {self._effect(f).describe()}")
-            else:
-                lines.append(f"  fault {f.label}: UART only (the UART stream was not generated)")
+                lines.append(
+                    f"  fault {self._effect(f).describe()}"
+                    if self.uart
+                    else f"  fault {f.label}: UART only (the UART stream was not generated)"
+                )
         return "\n".join(lines)
 
     def _effect(self, f: Fault) -> FaultEffect:
