@@ -76,7 +76,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict[str, list[dict[st
     run_pipeline(batches, sinks=[sink])
     sink.mark(float(sim.frames["t"][-1]), "operator mark 1")
     sink.close()
-    write_emulation(emu_path, sim)
+    write_emulation(emu_path, [sim], sim.scenario)
     topics: dict[str, list[dict[str, Any]]] = {}
     for path in (run_path, emu_path):
         for topic in _topics_in_layout():

@@ -140,13 +140,13 @@ def test_tui_recording_that_failed_keeps_the_files_count(tmp_path: Path) -> None
     """The TUI's last-recording status after a failure: the count read back from the cut
     file, not the writer's (here a fake writer that says 7)."""
     from bench.live.session import Recorder
-    from bench.mcaplog.emulation import write_emulation_chunks
+    from bench.mcaplog.emulation import write_emulation
     from devices.emulator import scenario_from_dict
     from devices.emulator.stream import simulate_chunks
 
     whole = tmp_path / "whole.mcap"
     sc = scenario_from_dict({"duration_s": 20.0, "sample_rate_hz": 200, "seed": 3})
-    sent = write_emulation_chunks(whole, simulate_chunks(sc, chunk_s=0.5), sc, chunk_size=8192)
+    sent = write_emulation(whole, simulate_chunks(sc, chunk_s=0.5), sc, chunk_size=8192)
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(whole.read_bytes()[: whole.stat().st_size // 2])
     held = _frames_in(cut)

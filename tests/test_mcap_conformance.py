@@ -102,7 +102,7 @@ def test_emulator_file_conforms(mcap_js: McapJs, tmp_path: Path) -> None:
     scenario = tmp_path / "scenario.toml"
     scenario.write_text('description = "conformance"\n')
     path = tmp_path / "emu.mcap"
-    write_emulation(path, sim, scenario)
+    write_emulation(path, [sim], sim.scenario, scenario)
     report = mcap_js.check(path)
     channels = {c["topic"]: c for c in report["channels"]}
     assert set(channels) == ALL_TOPICS | {S.TRUTH_TOPIC}

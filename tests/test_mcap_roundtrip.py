@@ -214,7 +214,7 @@ def test_log_and_mcap_of_the_same_emulation_replay_identically(tmp_path: Path) -
 
     sim = emulated(14.0, seed=11)
     write_candump(tmp_path / "run.log", sim.frames)
-    counts = write_emulation(tmp_path / "run.mcap", sim, None)
+    counts = write_emulation(tmp_path / "run.mcap", [sim], sim.scenario)
     assert counts["frames"] == len(sim.frames) and counts["truth"] == len(sim.truth)
     outs = []
     for name in ("run.log", "run.mcap"):

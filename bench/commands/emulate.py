@@ -171,11 +171,11 @@ def _write_streamed(sc: Any, out: str | None, truth: str | None) -> tuple[list[s
     from devices.emulator.stream_out import write_streamed
 
     def mcap_writer(path: Path, chunks: Any, scenario: Any) -> dict[str, int]:
-        from bench.mcaplog.emulation import write_emulation_chunks
+        from bench.mcaplog.emulation import write_emulation
 
         config = scenario_config(scenario)
         try:
-            return write_emulation_chunks(
+            return write_emulation(
                 path,
                 chunks,
                 scenario,
