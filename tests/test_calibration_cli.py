@@ -11,7 +11,8 @@ import pytest
 
 from bench.cli import main
 from bench.config import Config, load_config
-from devices.emulator import scenario_from_dict, simulate, write_output
+from devices.emulator import scenario_from_dict, simulate
+from devices.writers import write_candump
 from tests.test_calibration_fit import AS_BUILT, IN_MOTION, TABLE, TILT_STEPS, TOLERANCE_DEG
 
 # A plan for this board as built (its scenario), judged on the bench's estimator: its limit
@@ -70,7 +71,7 @@ def plan_text() -> str:
 
 
 def write_log(scenario: dict, path: Path) -> Path:
-    write_output(simulate(scenario_from_dict(scenario)), path)
+    write_candump(path, simulate(scenario_from_dict(scenario)).frames)
     return path
 
 

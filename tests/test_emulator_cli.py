@@ -20,8 +20,8 @@ from devices.emulator import (
     load_scenario,
     simulate,
     start_virtual_board,
-    write_output,
 )
+from devices.emulator.stream_out import write_streamed
 from protocol.uart import deframe_bytes
 
 SHORT = """
@@ -124,7 +124,7 @@ def test_mcap_output_is_written_by_the_bench(scenario: Path, tmp_path: Path, cap
     assert main(["emulate", str(scenario), "--out", str(tmp_path / "x.mcap")]) == 0
     assert (tmp_path / "x.mcap").read_bytes()[:8] == b"\x89MCAP0\r\n"
     with pytest.raises(BenchError, match="mcap output needs"):
-        write_output(simulate(load_scenario(scenario)), tmp_path / "y.mcap")
+        write_streamed(load_scenario(scenario), tmp_path / "y.mcap")
 
 
 def test_list_builtin_scenarios(capsys):

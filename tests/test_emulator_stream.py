@@ -20,10 +20,11 @@ import pytest
 
 from bench.cli import main
 from benchmarks.soak import fault_schedule
-from devices.emulator import load_scenario, scenario_from_dict, simulate, write_output
+from devices.emulator import load_scenario, scenario_from_dict, simulate
 from devices.emulator.player import write_truth_csv
 from devices.emulator.stream import RunCounts, simulate_chunks
 from devices.errors import BenchError
+from devices.writers import write_candump
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -92,8 +93,8 @@ def test_bench_emulate_files_are_the_whole_runs(
     sc = load_scenario(sc_path)
     sim = simulate(sc)
     summary = sim.summary()  # of a .log run: before the UART stream is made for the .bin
-    write_output(sim, tmp_path / "whole.log")
-    write_output(sim, tmp_path / "whole.bin")
+    write_candump(tmp_path / "whole.log", sim.frames)
+    (tmp_path / "whole.bin").write_bytes(sim.uart_bytes())
     write_truth_csv(tmp_path / "whole.csv", sim.truth)
 
     args = ["emulate", str(sc_path), "--truth", str(tmp_path / "s.csv")]

@@ -15,7 +15,6 @@ from devices.emulator.player import (
     CanPlayer,
     PtyPlayer,
     start_virtual_board,
-    write_output,
     write_truth_csv,
 )
 from devices.emulator.scenario import (
@@ -50,6 +49,5 @@ __all__ = [
     "scenario_from_dict",
     "simulate",
     "start_virtual_board",
-    "write_output",
     "write_truth_csv",
 ]

@@ -18,7 +18,6 @@ import termios
 import threading
 import time
 import tty
-from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -292,50 +291,6 @@ def start_virtual_board(
 
 
 # ----------------------------------------------------------------------------- file output
-
-
-McapWriter = Callable[[Path, Simulation, "str | Path | None"], Mapping[str, int]]
-
-
-def write_output(
-    sim: Simulation, path: str | Path, *, mcap_writer: McapWriter | None = None
-) -> str:
-    """Write the run to a file as fast as possible; the kind follows the suffix.
-
-    .log: candump text of the CAN frames; .bin: raw UART byte stream with UART faults;
-    .mcap: through ``mcap_writer`` (MCAP is the bench's format, so the bench passes its
-    writer: devices/ never imports bench/). Returns a summary line.
-    """
-    p = Path(path)
-    suffix = p.suffix.lower()
-    try:
-        if suffix == ".log":
-            try:
-                from devices.writers import write_candump
-            except ImportError as exc:
-                raise BenchError(f"candump output needs devices.writers ({exc})") from None
-            write_candump(p, sim.frames)
-            return f"wrote {len(sim.frames)} CAN frames to {p}"
-        if suffix == ".bin":
-            stream = sim.uart_stream()
-            p.write_bytes(stream.data)
-            return (
-                f"wrote {len(stream)} UART packets ({len(stream.data)} bytes, "
-                f"{stream.packets_broken} broken by UART faults) to {p}"
-            )
-        if suffix == ".mcap":
-            if mcap_writer is None:
-                raise BenchError(
-                    "mcap output needs the bench's MCAP writer (bench emulate passes it); "
-                    "write .log or .bin instead"
-                )
-            counts = mcap_writer(p, sim, sim.scenario.path or None)
-            return f"wrote {counts.get('frames', len(sim.frames))} CAN frames and truth to {p}"
-    except OSError as exc:
-        raise BenchError(f"{p}: cannot write: {exc.strerror or exc}") from None
-    raise BenchError(
-        f"{p}: unknown output type {suffix or '(none)'!r} (expected .log, .bin or .mcap)"
-    )
 
 
 def write_truth_csv(path: str | Path, truth: np.ndarray) -> None:

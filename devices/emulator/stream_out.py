@@ -1,9 +1,9 @@
 """``bench emulate --out FILE [--truth CSV]`` in bounded memory: the run's chunks
 (:func:`devices.emulator.stream.simulate_chunks`) go to the files as they are computed.
 
-The files are byte for byte what :func:`devices.emulator.player.write_output` and
-:func:`devices.emulator.player.write_truth_csv` write from the whole ``simulate()`` (the
-candump writer streams; the UART bytes and the truth rows of consecutive chunks follow one
+The files are byte for byte what the whole ``simulate()`` gives (``write_candump`` of its
+frames, its ``uart_bytes()``, :func:`devices.emulator.player.write_truth_csv`: the candump
+writer streams; the UART bytes and the truth rows of consecutive chunks follow one
 another), and the summary is :meth:`Simulation.summary`'s text.
 """
 
