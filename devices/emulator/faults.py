@@ -125,13 +125,6 @@ def duplicate_rows(n: int, dup: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order, is_copy
 
 
-def reorder_rows(moved: np.ndarray, depth: int) -> np.ndarray:
-    """Row order with each marked row delayed by ``depth`` positions (others keep their order)."""
-    pos = np.arange(len(moved), dtype=np.float64)
-    pos[moved] += depth + 0.5
-    return np.argsort(pos, kind="stable")
-
-
 def serialise(queue_us: np.ndarray, gap_us: int) -> np.ndarray:
     """Bus send times: each frame goes when queued, but not before the previous one is done.
 

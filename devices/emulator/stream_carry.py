@@ -69,8 +69,8 @@ class Spikes:
 
 class Reorder:
     """One reorder fault over the frame stream: each picked frame goes ``depth`` places
-    later (fx.reorder_rows), send times stay with the places. Frames whose new place lies
-    past what has arrived wait for the next chunk."""
+    later (the others keep their order), send times stay with the places. Frames whose new
+    place lies past what has arrived wait for the next chunk."""
 
     def __init__(self, fault: Fault, rng: np.random.Generator, keep: bool = False) -> None:
         self.fault, self.rng = fault, rng
