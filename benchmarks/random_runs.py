@@ -62,8 +62,6 @@ STREAMS = {
     "track": 25,
 }
 
-ODOMETER_CLASSES = ("usable", "poor", "absent")
-
 
 def _rng(seed: int, stream: str) -> np.random.Generator:
     return np.random.default_rng([seed, STREAMS[stream]])

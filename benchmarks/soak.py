@@ -42,10 +42,6 @@ from typing import Any
 from bench.engine.child import ProblemLog
 from benchmarks.common import machine_info, rss_mb
 
-UART_ONLY = {"noise", "truncation"}
-"""UART faults act on the UART byte stream only; they are in the scenario (so the schedule
-is complete) but a CAN run cannot show them. The pty fault test covers the UART path."""
-
 
 def fault_schedule(duration_s: float, cycles: int = 3) -> list[dict[str, Any]]:
     """Every fault kind in turn, ``cycles`` times round; each is on for 60 % of its slot."""

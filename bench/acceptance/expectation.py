@@ -21,7 +21,6 @@ from bench.acceptance.model import EXIT_CODES
 
 __all__ = ["EXIT_CODES", "check_status", "expectation_text", "plan_line", "result", "status_of"]
 
-STATUSES = ("ok", "as designed", "not as designed", "failure", "error", "skipped")
 FAILING = frozenset({"not as designed", "failure"})
 
 

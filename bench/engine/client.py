@@ -396,7 +396,6 @@ def start_engine(
     plan: EnginePlan,
     *,
     warn: Callable[[str], None] = lambda m: None,
-    ready_timeout: float = READY_TIMEOUT_S,
 ) -> EngineSession:
     """Start the engine on ``plan`` and wait until its run is going. What goes wrong while
     building (no such bus, log folder unusable) is raised here as the engine raised it."""
@@ -405,7 +404,7 @@ def start_engine(
     try:
         with contextlib.suppress(OSError):  # an engine that ended already: see below why
             conn.send(plan)
-        kind, *rest = _first_message(conn, proc, ready_timeout)
+        kind, *rest = _first_message(conn, proc, READY_TIMEOUT_S)
     except BaseException:
         _abandon(proc, conn)
         raise

@@ -91,9 +91,8 @@ class McapLog:
     truncated or damaged tail; only a file that is not MCAP at all raises McapReadError.
     """
 
-    def __init__(self, path: str | Path, *, verify_crc: bool = True) -> None:
+    def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.verify_crc = verify_crc
         why = regular_file_problem(self.path)  # before opening: a FIFO's open waits forever
         if why.startswith("not a regular file"):
             raise McapReadError(f"{self.path}: cannot open: {why}")
@@ -419,7 +418,7 @@ class McapLog:
         if len(buf) != info.uncompressed_size:
             self._bad(info, f"size {len(buf)} != {info.uncompressed_size}")
             return None
-        if self.verify_crc and info.crc and zlib.crc32(buf) != info.crc:
+        if info.crc and zlib.crc32(buf) != info.crc:
             self._bad(info, "CRC mismatch")
             return None
         return buf

@@ -1,4 +1,4 @@
-"""Results (and events, samples) as Arrow columns: names with units, one schema for every writer.
+"""Results as Arrow columns: names with units, one schema for every writer.
 
 The column layout is derived from the numpy dtypes (``RESULT_DTYPE`` and friends) and a table of
 names and units below, so a field added to a dtype becomes a column without touching the
@@ -26,7 +26,6 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from bench.records.events import EVENT_DTYPE
 from bench.records.results import RESULT_DTYPE, UNIX_TIME_FROM
 
 UTC_COLUMN = "utc"
@@ -113,14 +112,6 @@ RESULT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
 """Names, units and meaning of the result fields, in output order (the analyst's columns
 first); RESULT_DTYPE fields not listed follow in dtype order, named as the field."""
 
-EVENT_FIELDS: dict[str, tuple[tuple[str, ...], str, str]] = {
-    "t": (("receive_time_s",), "s", "receive time at which the event was noticed"),
-    "kind": (("kind",), "", "bench.records.events.EventKind value"),
-    "channel": (("channel",), "", "ADC channel 1..3, 0 when none"),
-    "n": (("counter",), "", "sample index, -1 when none"),
-    "value": (("value",), "", "kind-specific value (docs/MCAP.md)"),
-}
-
 
 def columns_of(dtype: np.dtype, table: dict[str, tuple[tuple[str, ...], str, str]]) -> list[Column]:
     """The output columns of ``dtype``: the table's fields in table order, then the rest."""
@@ -153,13 +144,11 @@ class Layout:
         table: dict[str, tuple[tuple[str, ...], str, str]],
         *,
         utc_after: str | None = None,
-        utc_from: str = "t",
         metadata: dict[str, str] | None = None,
     ) -> None:
         self.dtype = dtype
         self.columns = columns_of(dtype, table)
         self.utc_after = utc_after  # the column the UTC timestamp goes beside
-        self.utc_from = utc_from
         fields = []
         self.aligned: list[Column | None] = []  # per schema field; None for the UTC column
         for col in self.columns:
@@ -193,7 +182,7 @@ class Layout:
             nulls = np.isnan(x) if x.dtype.kind == "f" else None
             arrays.append(arrow_array(x, _arrow_type(x.dtype), nulls))
             if col.name == self.utc_after:
-                arrays.append(utc_array(rows[self.utc_from]))
+                arrays.append(utc_array(rows["t"]))
         return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
 
     def rows(self, table: pa.Table | pa.RecordBatch) -> np.ndarray:
@@ -257,7 +246,6 @@ def csv_schema(layout: Layout) -> pa.Schema:
 
 CSV_SCHEMA = csv_schema(RESULTS)
 """The results CSV's columns (in the Parquet file's order)."""
-EVENTS = Layout(EVENT_DTYPE, EVENT_FIELDS, utc_after="receive_time_s")
 
 
 def results_from_table(table: pa.Table | pa.RecordBatch) -> np.ndarray:

@@ -184,12 +184,10 @@ class PtyPlayer(_PacedPlayer):
         t0: float,
         *,
         speed: float = 1.0,
-        linger_s: float = 1.0,
         cpus: frozenset[int] | None = None,
     ) -> None:
         super().__init__(stream.packet_t - t0, speed, name="virtual-board-pty", cpus=cpus)
         self.stream = stream
-        self.linger_s = linger_s
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)
         os.set_blocking(self.master, False)
@@ -233,8 +231,8 @@ class PtyPlayer(_PacedPlayer):
         if self._closed:
             return
         # Closing the master hangs the line up and loses what the reader has not taken
-        # yet, so give it a moment (linger_s) to read the tail of the stream.
-        deadline = time.monotonic() + self.linger_s
+        # yet, so give it a second to read the tail of the stream.
+        deadline = time.monotonic() + 1.0
         drained = 0
         while not self._halt.is_set() and time.monotonic() < deadline and drained < 2:
             time.sleep(0.02)
