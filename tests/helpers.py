@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -57,6 +61,17 @@ def read_until(
         if batch:
             batches.append(batch)
     return batches
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def bench(*args: str, timeout: float = 120.0, **kw: Any) -> subprocess.CompletedProcess[str]:
+    """``python -m bench ARGS`` in a process of its own (from the repo root unless ``cwd``
+    says otherwise), its output captured; the timeout only ends a hang."""
+    kw.setdefault("cwd", ROOT)
+    cmd = [sys.executable, "-m", "bench", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False, **kw)
 
 
 def until(cond: Callable[[], bool], what: str = "the condition", timeout: float = 60.0) -> None:

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from bench.cli import build_parser, command_names, main, named_command
+from tests.helpers import bench
 
 COMMANDS = [
     "accept",
@@ -143,10 +144,6 @@ def test_the_program_exits_with_mains_code_its_objects_frozen_for_the_exit(
 
 
 def test_python_dash_m_bench_is_the_program(tmp_path: Path) -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "bench", "replay", str(tmp_path / "missing.log")],
-        capture_output=True,
-        text=True,
-    )
+    done = bench("replay", str(tmp_path / "missing.log"))
     assert done.returncode == 2
     assert done.stderr.startswith("bench: error: ") and done.stderr.count("\n") == 1

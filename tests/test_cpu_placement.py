@@ -28,7 +28,7 @@ from devices.cpu_placement import (
     pin_thread,
     restore_thread,
 )
-from tests.helpers import until
+from tests.helpers import bench, until
 
 ROOT = Path(__file__).resolve().parent.parent
 placeable = pytest.mark.skipif(
@@ -182,24 +182,8 @@ def test_the_screen_of_an_engine_stays_off_the_live_cpu(
 
 def test_a_bad_setting_stops_the_cli_with_one_line(tmp_path: Path) -> None:
     env = dict(os.environ, **{LIVE_CPU_ENV: "not-a-cpu"})
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "bench",
-            "run",
-            "--emulate",
-            "devices/scenarios/demo.toml",
-            "--duration",
-            "1",
-            "--no-log",
-        ],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    args = ["run", "--emulate", "devices/scenarios/demo.toml", "--duration", "1", "--no-log"]
+    proc = bench(*args, env=env)
     assert proc.returncode == 2, proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("bench: error:")]
     assert len(errors) == 1 and LIVE_CPU_ENV in errors[0], proc.stderr

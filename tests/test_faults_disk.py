@@ -19,7 +19,6 @@ import re
 import resource
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -27,7 +26,8 @@ from typing import Any
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.helpers import bench
+
 LIMIT = 60_000
 
 SCENARIO = """
@@ -58,26 +58,8 @@ def full_disk_run(
     sc = d / "disk_test.toml"
     sc.write_text(SCENARIO, encoding="utf-8")
     mcap = d / "run.mcap"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "bench",
-            "run",
-            "--emulate",
-            str(sc),
-            "--mcap",
-            str(mcap),
-            "--duration",
-            "5",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        preexec_fn=_limit_file_size,
-        check=False,
-    )
+    args = ["run", "--emulate", str(sc), "--mcap", str(mcap), "--duration", "5"]
+    proc = bench(*args, preexec_fn=_limit_file_size)
     return proc, mcap
 
 
@@ -106,14 +88,7 @@ def test_full_disk_mid_run_is_an_error_at_the_end(full_disk_run: Any) -> None:
 
 def test_log_cut_by_full_disk_is_readable(full_disk_run: Any) -> None:
     _, mcap = full_disk_run
-    proc = subprocess.run(
-        [sys.executable, "-m", "bench", "log", "info", str(mcap), "--json"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    proc = bench("log", "info", str(mcap), "--json")
     assert proc.returncode == 0 and "Traceback" not in proc.stderr
     import json
 

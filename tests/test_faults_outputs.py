@@ -16,15 +16,13 @@ import io
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pyarrow as pa
 import pytest
 
 from bench.cli import main
-
-ROOT = Path(__file__).resolve().parent.parent
+from tests.helpers import bench
 
 SCENARIO = """
 description = "output test: 200 Hz, 2.5 s, level"
@@ -133,18 +131,12 @@ def test_live_csv_on_a_real_full_tmpfs(tmp_path, scenario):
         pytest.skip("needs root and mount to make a 64 kB tmpfs")
     try:
         log = tmp_path / "run.mcap"
-        r = subprocess.run(
-            [sys.executable, "-m", "bench", "run", "--emulate", str(scenario),
-             "--csv", str(small / "live.csv"), "--mcap", str(log)],
-            capture_output=True, text=True, timeout=120, cwd=ROOT,
-        )  # fmt: skip
+        r = bench("run", "--emulate", str(scenario), "--csv", str(small / "live.csv"),
+                  "--mcap", str(log))  # fmt: skip
         assert r.returncode == 1, r.stderr
         assert "cannot write the CSV: No space left on device" in r.stderr
         assert "Traceback" not in r.stderr
-        info = subprocess.run(
-            [sys.executable, "-m", "bench", "log", "info", str(log), "--json"],
-            capture_output=True, text=True, timeout=60, cwd=ROOT,
-        )  # fmt: skip
+        info = bench("log", "info", str(log), "--json")
         assert json.loads(info.stdout)["frames"] == _frames_sent(scenario)
     finally:
         with contextlib.suppress(Exception):

@@ -6,24 +6,13 @@ not and exits 2 -- no traceback, no half-open bus left behind.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import bench
+
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def bench(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "bench", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 def test_log_folder_that_is_a_file(tmp_path: Path) -> None:

@@ -23,6 +23,8 @@ import termios
 import time
 from pathlib import Path
 
+from tests.helpers import bench
+
 ROOT = Path(__file__).resolve().parent.parent
 ALT_SCREEN = b"\x1b[?1049h"
 SCENARIO = """
@@ -118,13 +120,7 @@ def test_first_bench_replay_says_it_compiles_before_it_does(tmp_path: Path) -> N
     scenario = tmp_path / "s.toml"
     scenario.write_text(SCENARIO, encoding="utf-8")
     log = tmp_path / "run.log"
-    made = subprocess.run(
-        [sys.executable, "-m", "bench", "emulate", str(scenario), "--out", str(log)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    made = bench("emulate", str(scenario), "--out", str(log), env=env)
     assert made.returncode == 0, made.stderr
     assert not kernel_cached(env)  # writing an emulator log needs no estimator
     proc = subprocess.Popen(

@@ -17,8 +17,6 @@ from __future__ import annotations
 import contextlib
 import signal
 import struct
-import subprocess
-import sys
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -29,8 +27,8 @@ import pytest
 from bench.cli import main
 from devices.writers import write_with_can_logger
 from protocol.crc import frame_crc8_batch
+from tests.helpers import bench
 
-ROOT = Path(__file__).resolve().parent.parent
 TIME_LIMIT_S = 20
 
 
@@ -301,14 +299,7 @@ def test_nasty_log_ends_in_a_clear_message(
 def test_corpus_through_the_real_command(corpus: dict[str, Path]) -> None:
     """A few of the worst files through a separate `python -m bench` process."""
     for name in ("truncated_100.mcap", "zero_size_object.blf"):
-        proc = subprocess.run(
-            [sys.executable, "-m", "bench", "replay", str(corpus[name]), "-q"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
+        proc = bench("replay", str(corpus[name]), "-q")
         assert proc.returncode in (0, 2), proc.stderr
         assert "Traceback" not in proc.stderr + proc.stdout
 

@@ -23,6 +23,7 @@ import pytest
 from bench.commands.run import status_line
 from bench.sinks.base import RecordingStatus
 from bench.tui.panels.recording import _figures
+from tests.helpers import bench
 
 ROOT = Path(__file__).resolve().parent.parent
 LIMIT = 60_000
@@ -44,26 +45,10 @@ def _frames_in(path: Path) -> int:
 def test_count_after_a_full_disk_is_the_files(tmp_path: Path, writer: str) -> None:
     sc, mcap = tmp_path / "s.toml", tmp_path / "run.mcap"
     sc.write_text(SCENARIO)
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "bench",
-            "run",
-            "--emulate",
-            str(sc),
-            "--mcap",
-            str(mcap),
-            "--duration",
-            "4",
-        ],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
+    proc = bench(
+        *["run", "--emulate", str(sc), "--mcap", str(mcap), "--duration", "4"],
         preexec_fn=_limit_file_size,
         env={**os.environ, "BENCH_LOG_WRITER": writer},
-        check=False,
     )
     assert "Traceback" not in proc.stderr and proc.returncode != 0, proc.stderr
     held = _frames_in(mcap)

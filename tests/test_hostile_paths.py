@@ -14,12 +14,12 @@ from __future__ import annotations
 import os
 import resource
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from bench.cli import main
+from tests.helpers import bench
 from tests.test_hostile_inputs import one_error
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -238,15 +238,8 @@ def _limited() -> None:
 
 def guarded(argv: list[str], cwd: Path) -> subprocess.CompletedProcess[str]:
     """The command in a process of its own; the timeout only ends a hang (a failure)."""
-    return subprocess.run(
-        [sys.executable, "-m", "bench", *argv],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        preexec_fn=_limited,
-    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return bench(*argv, cwd=cwd, timeout=60, env=env, preexec_fn=_limited)
 
 
 @pytest.fixture
