@@ -45,7 +45,7 @@ def scenario(tmp_path: Path) -> Path:
     return p
 
 
-def _limit_file_size() -> None:  # runs in the child between fork and exec
+def limit_file_size() -> None:  # runs in the child between fork and exec
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     resource.setrlimit(resource.RLIMIT_FSIZE, (LIMIT, LIMIT))
 
@@ -59,7 +59,7 @@ def full_disk_run(
     sc.write_text(SCENARIO, encoding="utf-8")
     mcap = d / "run.mcap"
     args = ["run", "--emulate", str(sc), "--mcap", str(mcap), "--duration", "5"]
-    proc = bench(*args, preexec_fn=_limit_file_size)
+    proc = bench(*args, preexec_fn=limit_file_size)
     return proc, mcap
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 import pytest
 
 from bench.mcaplog.schemas import RESULT_TOPIC
+from tests.helpers import bench
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -68,14 +69,7 @@ def wait_for_data(
 
 
 def log_info(path: Path) -> dict:
-    proc = subprocess.run(
-        bench_cmd("log", "info", str(path), "--json"),
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    proc = bench("log", "info", str(path), "--json")
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout)
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 import re
-import resource
 import signal
 import subprocess
 import sys
@@ -24,15 +23,10 @@ from bench.commands.run import status_line
 from bench.sinks.base import RecordingStatus
 from bench.tui.panels.recording import _figures
 from tests.helpers import bench
+from tests.test_faults_disk import limit_file_size
 
 ROOT = Path(__file__).resolve().parent.parent
-LIMIT = 60_000
 SCENARIO = "seed = 6\nduration_s = 30.0\nsample_rate_hz = 200\n"
-
-
-def _limit_file_size() -> None:  # in the child, between fork and exec
-    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (LIMIT, LIMIT))
 
 
 def _frames_in(path: Path) -> int:
@@ -47,7 +41,7 @@ def test_count_after_a_full_disk_is_the_files(tmp_path: Path, writer: str) -> No
     sc.write_text(SCENARIO)
     proc = bench(
         *["run", "--emulate", str(sc), "--mcap", str(mcap), "--duration", "4"],
-        preexec_fn=_limit_file_size,
+        preexec_fn=limit_file_size,
         env={**os.environ, "BENCH_LOG_WRITER": writer},
     )
     assert "Traceback" not in proc.stderr and proc.returncode != 0, proc.stderr
