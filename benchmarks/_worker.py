@@ -7,6 +7,7 @@ Progress goes to stderr; the last stdout line is ``FIGURES <json list>``.
 
 from __future__ import annotations
 
+import importlib
 import json
 import sys
 import traceback
@@ -31,52 +32,32 @@ def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+MEASUREMENTS = {  # name: module, function, what it is handed (out: figures as they come)
+    "replay": ("replay", "measure", "out"),
+    "fusion": ("fusion", "measure", ""),
+    "live_rate": ("live", "measure_rate", "log"),
+    "latency": ("live", "measure_latency", ""),
+    "replay_process": ("replay_process", "measure", ""),
+    "replay_memory": ("outputs", "measure_memory", "out"),
+    "fleet": ("outputs", "measure_fleet", "out"),
+    "accuracy": ("accuracy", "measure", "log"),
+    "random": ("random_accuracy", "measure", "log"),
+    "calibration": ("calibration", "measure", "log"),
+    "rec_toggle": ("rec_toggle", "measure", ""),
+}
+
+
 def run(name: str, kwargs: dict[str, Any]) -> list[Figure]:
-    if name == "replay":
-        from benchmarks import replay
-
-        return replay.measure(out=_Emitting(), **kwargs)
-    if name == "fusion":
-        from benchmarks import fusion
-
-        return fusion.measure(**kwargs)
-    if name == "live_rate":
-        from benchmarks import live
-
-        return live.measure_rate(log=_log, **kwargs)
-    if name == "latency":
-        from benchmarks import live
-
-        return live.measure_latency(**kwargs)
-    if name == "replay_process":
-        from benchmarks import replay_process
-
-        return replay_process.measure(**kwargs)
-    if name == "replay_memory":
-        from benchmarks import outputs
-
-        return outputs.measure_memory(out=_Emitting(), **kwargs)
-    if name == "fleet":
-        from benchmarks import outputs
-
-        return outputs.measure_fleet(out=_Emitting(), **kwargs)
-    if name == "accuracy":
-        from benchmarks import accuracy
-
-        return accuracy.measure(log=_log, **kwargs)
-    if name == "random":
-        from benchmarks import random_accuracy
-
-        return random_accuracy.measure(log=_log, **kwargs)
-    if name == "calibration":
-        from benchmarks import calibration
-
-        return calibration.measure(log=_log, **kwargs)
-    if name == "rec_toggle":
-        from benchmarks import rec_toggle
-
-        return rec_toggle.measure(**kwargs)
-    raise SystemExit(f"unknown measurement {name!r}")
+    if name not in MEASUREMENTS:
+        raise SystemExit(f"unknown measurement {name!r}")
+    module, function, given = MEASUREMENTS[name]
+    measure = getattr(importlib.import_module(f"benchmarks.{module}"), function)
+    if given == "out":
+        kwargs = {**kwargs, "out": _Emitting()}
+    elif given == "log":
+        kwargs = {**kwargs, "log": _log}
+    figures: list[Figure] = measure(**kwargs)
+    return figures
 
 
 def main(argv: list[str]) -> int:
