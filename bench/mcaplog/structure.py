@@ -249,16 +249,9 @@ def walk_records(buf: Any, ops: set[int]) -> Iterator[tuple[int, int, int]]:
 def walk_chunk(buf: bytes, channels: set[int] | None) -> dict[int, np.ndarray]:
     """Per-record walk of a chunk (the fallback when its MessageIndex is missing)."""
     found: dict[int, list[int]] = {}
-    pos, size = 0, len(buf)
-    head = struct.Struct("<BQ").unpack_from
-    while pos + 9 <= size:
-        op, length = head(buf, pos)
-        end = pos + 9 + length
-        if end > size:
-            break
-        if op == OP_MESSAGE and length >= 22:
-            (cid,) = struct.unpack_from("<H", buf, pos + 9)
+    for _, body, end in walk_records(buf, {OP_MESSAGE}):
+        if end - body >= 22:
+            (cid,) = struct.unpack_from("<H", buf, body)
             if channels is None or cid in channels:
-                found.setdefault(cid, []).append(pos)
-        pos = end
+                found.setdefault(cid, []).append(body - 9)
     return {cid: np.asarray(offs, dtype=np.int64) for cid, offs in found.items()}
