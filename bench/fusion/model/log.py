@@ -88,6 +88,17 @@ def params(config: Config, **override: float) -> state.ModelParams:
     return state.ModelParams(**kw)
 
 
+def channel_inputs(acc: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(y, used) of the forward pass: the readings (N, 3) with 0 where unused, and the
+    channels used (bit c of ``mask`` for channel c + 1, and finite)."""
+    code = np.asarray(mask, dtype=np.int64)
+    n = len(code)
+    y = np.array(acc, dtype=np.float64).reshape(n, 3)
+    used = np.column_stack([(code >> c) & 1 for c in range(3)]).astype(np.bool_)
+    used &= np.isfinite(y)
+    return np.where(used, y, 0.0), used
+
+
 class ModelLog:
     """Keeps the estimator's inputs of a run (see :meth:`add`)."""
 
@@ -109,10 +120,10 @@ class ModelLog:
         bit c for channel c + 1; frames as the filter gets them (anchor index into this
         push, board time measured, speed m/s, restart, standstill) or None."""
         n = len(b)
-        code = np.asarray(mask, dtype=np.int64)
+        y, used = channel_inputs(acc, mask)
         self._b.append(np.array(b, dtype=np.float64))
-        self._acc.append(np.array(acc, dtype=np.float64).reshape(n, 3))
-        self._used.append(np.column_stack([(code >> c) & 1 for c in range(3)]).astype(np.bool_))
+        self._acc.append(y)
+        self._used.append(used)
         if frames is not None and len(frames[0]):
             fa, *rest = frames
             self._frames.append((np.asarray(fa, dtype=np.int64) + self.samples, *rest))
@@ -127,8 +138,7 @@ class ModelLog:
             e = np.zeros(0)
             return Smoothed(e, e, e, e, math.nan, math.nan)
         y = np.concatenate(self._acc)
-        used = np.concatenate(self._used) & np.isfinite(y)
-        y = np.where(used, y, 0.0)
+        used = np.concatenate(self._used)
         cols = list(zip(*self._frames, strict=True)) if self._frames else [()] * 5
         fa = np.concatenate(cols[0]).astype(np.int64) if self._frames else np.zeros(0, np.int64)
         fw, fs = (
@@ -147,7 +157,7 @@ class ModelLog:
         for done in range(1, PASSES + 1):
             t_mid, xp, pp, xf, pf, jac, _ = run.forward(
                 b, y, used, fa, fw, fs, fr, fst, accept, np.cos(th), np.sin(th), prm,
-                x0, p0, block, ODOMETER_GATE, CHANNEL_GATE,
+                x0, p0, block, ODOMETER_GATE, CHANNEL_GATE, np.zeros(2), 0.0, True,
             )  # fmt: skip
             if not len(causal_x):
                 causal_x, causal_p = xf, pf  # the filter alone: what a live run could give
@@ -167,7 +177,7 @@ class ModelLog:
         g = config.g
         out: list[np.ndarray] = []
         for xx, px in ((causal_x, causal_p), (xs, ps)):
-            grad, sig = _gradient(xx[:, state.S], px[:, state.S, state.S], g)
+            grad, sig = gradient_permil(xx[:, state.S], px[:, state.S, state.S], g)
             value, sigma = grad[idx], sig[idx]
             out += [np.where(few | ~(sigma <= limit), np.nan, value), sigma]
         return Smoothed(
@@ -203,7 +213,7 @@ def _consistent(
     return np.asarray(hi == lo)
 
 
-def _gradient(s: np.ndarray, var_s: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
+def gradient_permil(s: np.ndarray, var_s: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
     """Gradient 1000 tan(alpha) (permil) of S = g sin(alpha) and its 1-sigma from var(S)."""
     c2 = g * g - s * s
     grad = 1000.0 * s / np.sqrt(c2)

@@ -142,12 +142,20 @@ def forward(
     block: int,
     odo_gate: float,
     ch_gate: float,
+    vib: np.ndarray,
+    t_prev0: float,
+    first: bool,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """b (N,) board time s; y (N, 3) readings m/s^2; used (N, 3) channel usable; frames
     (anchor sample, board time measured, speed m/s, restart, standstill, and whether it
     may be applied: a smoother's second pass leaves out the frames its first found
     slipping). Returns per block: mid-time, predicted x and P, filtered x and P, the
-    Jacobian into the block, and odometer rejects."""
+    Jacobian into the block, and odometer rejects.
+
+    A stream goes on where the last call ended (bench.fusion.model.stream): x0, p0 the
+    last block's filtered state, vib (2,) the body's vibration learnt so far (updated in
+    place), t_prev0 the last block's mid-time; ``first`` for the stream's first block,
+    which predicts from b[0] whatever its dt."""
     n = len(b)
     nb = (n + block - 1) // block
     t_mid = np.empty(nb)
@@ -156,10 +164,9 @@ def forward(
     jac = np.zeros((nb, NX, NX))
     rejects = np.zeros(nb)
     x, cov = x0.copy(), p0.copy()
-    t_prev = b[0] if n else 0.0
+    t_prev = b[0] if first and n else t_prev0
     fi = 0
     ymean, count = np.zeros(3), np.zeros(3)
-    vib = np.zeros(2)  # the body's vibration variances learnt, along and normal to the track
     h_zupt = np.zeros((1, NX))
     h_zupt[0, A] = 1.0
     r_zupt = np.empty((1, 1))
@@ -168,7 +175,7 @@ def forward(
         lo, hi = k * block, min((k + 1) * block, n)
         tm = 0.5 * (b[lo] + b[hi - 1])
         dt = tm - t_prev
-        if dt > 0.0 or k == 0:
+        if dt > 0.0 or (first and k == 0):
             fj = process.jacobian(x, dt, prm)
             q = process.noise(x, dt, prm)
             x, cov = predict(process.f(x, dt, prm), fj, cov, q)
