@@ -209,8 +209,10 @@ def run_live(
     on_progress: Any = None,
     mcap_path: Path | None = None,
     csv_opener: Any = None,
+    lag_s: float | None = None,
 ) -> LiveRun:
-    """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s).
+    """One live run; ``rate`` frames/s (None: the board's own 1 kHz pace, ~3.06 k frames/s);
+    ``lag_s``: with the live model (`--lag`).
 
     ``csv_opener`` (without the TUI): also write the live results CSV, as `bench run --csv`
     does, through this stream opener (e.g. a file that fails mid-run)."""
@@ -228,7 +230,7 @@ def run_live(
     if tui:
         if csv_opener is not None:
             raise ValueError("a results CSV is for runs without the TUI")
-        return _run_live_tui(run, speed, faults, on_progress, mcap_path, workdir)
+        return _run_live_tui(run, speed, faults, on_progress, mcap_path, workdir, lag_s)
     scenario = scenario_from_dict(
         board_scenario(min(3600.0, seconds * speed + 2.0), faults=faults or []), "benchmark"
     )
@@ -249,7 +251,7 @@ def run_live(
 
             csv = csv_sink(Path(tmp) / "live.csv", live=True, opener=csv_opener)
             sinks.append(csv)
-        runner = LiveRunner(source, config, sinks, description="benchmark")
+        runner = LiveRunner(source, config, sinks, description="benchmark", lag_s=lag_s)
         runner.recording = mcap
         runner.start()
         player = start_virtual_board(sim, channel, speed=speed)
@@ -305,6 +307,7 @@ def _run_live_tui(
     on_progress: Any,
     mcap_path: Path | None,
     workdir: str | None,
+    lag_s: float | None = None,
 ) -> LiveRun:
     """The run as `bench tui --emulate` does it: board, source, runner, MCAP log and the
     LatencySink in the engine process (:mod:`bench.engine.client`), the App headless in this one.
@@ -325,6 +328,7 @@ def _run_live_tui(
             log_dir=Path(tmp),
             description="benchmark",
             sinks=(LatencySink,),
+            lag_s=lag_s,
         )
         session = start_engine(plan)
         try:
@@ -494,14 +498,18 @@ def _cpu_ticks() -> tuple[int, int] | None:
         return None
 
 
-def measure_latency(seconds: float = 30.0, tui: bool = False) -> list[Figure]:
+def measure_latency(
+    seconds: float = 30.0, tui: bool = False, lag_s: float | None = None
+) -> list[Figure]:
     before = _cpu_ticks()
-    r = run_live(None, seconds, tui=tui)
+    r = run_live(None, seconds, tui=tui, lag_s=lag_s)
     after = _cpu_ticks()
     steal = ""
     if before is not None and after is not None and after[1] > before[1]:
         steal = f"; host steal {100.0 * (after[0] - before[0]) / (after[1] - before[1]):.1f} %"
     label = "TUI attached headless" if tui else "no TUI"
+    if lag_s is not None:
+        label += f", live model --lag {lag_s:g}"
     detail = (
         f"{r.results} results over {seconds:.0f} s at 1 kHz x 3 ch, MCAP on{steal}, "
         f"{live_cpu_text()}; "
@@ -509,7 +517,7 @@ def measure_latency(seconds: float = 30.0, tui: bool = False) -> list[Figure]:
         f"drained {r.drain_s:.2f} s after the board stopped"
         + (f"; {r.tui_snapshots} TUI snapshots" if tui else "")
     )
-    key = "tui" if tui else "notui"
+    key = ("tui" if tui else "notui") + ("" if lag_s is None else "_lag")
     err = "; ".join(r.errors)
     return [
         Figure(
@@ -539,6 +547,7 @@ if __name__ == "__main__":  # pragma: no cover - manual probing
 
     rate = float(sys.argv[1]) if len(sys.argv) > 1 and sys.argv[1] != "board" else None
     secs = float(sys.argv[2]) if len(sys.argv) > 2 else 10.0
-    print(run_live(rate, secs, tui="--tui" in sys.argv).summary())
+    lag = next((float(a[6:]) for a in sys.argv if a.startswith("--lag=")), None)
+    print(run_live(rate, secs, tui="--tui" in sys.argv, lag_s=lag).summary())
     with contextlib.suppress(Exception):
         print(threading.enumerate())

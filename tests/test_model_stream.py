@@ -58,7 +58,7 @@ class _Pushes:
         self.pushes: list[Push] = []
         self.log = ModelLog()
 
-    def add(self, b, acc, mask, frames) -> None:  # type: ignore[no-untyped-def]
+    def add(self, b, acc, mask, frames, t=None) -> None:  # type: ignore[no-untyped-def]
         keep = None if frames is None else tuple(np.array(c) for c in frames)
         self.pushes.append((np.array(b), np.array(acc), np.array(mask), keep))
         self.log.add(b, acc, mask, frames)

@@ -36,5 +36,20 @@ SPEED = bounded_float(0.0, 1000.0, "x real time")
 """A virtual board's time factor."""
 RATE = bounded_float(0.0, 1000.0, "x recorded speed")
 """A recorded log's replay speed factor."""
+LAG = bounded_float(0.0, 10.0, "s", lo_included=True)
+"""The live model's fixed lag (`--lag`): its smoother's cost per block grows with it."""
+
+
+def add_lag_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--lag",
+        type=LAG,
+        metavar="SECONDS",
+        help="run the explicit model live (its own thread) and smooth its gradient over the "
+        "last SECONDS (0-10; 0: the filter alone): a second plot line, a model panel (wheel "
+        "error, compliance, biases), /bench/model in the log",
+    )
+
+
 OFFSET = bounded_float(0.0, 1e7, "s", lo_included=True)
 """Seconds into a log: zero or more."""

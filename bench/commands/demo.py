@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 import devices
-from bench.commands.argtypes import SPEED
+from bench.commands.argtypes import SPEED, add_lag_argument
 from bench.config_choice import announce, live_config, scenario_config
 from bench.defaults import log_folder
 from bench.live.setup import add_log_arguments, check_live_paths
@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_log_arguments(p)
     add_foxglove_arguments(p)
+    add_lag_argument(p)
     p.set_defaults(func=run)
 
 
@@ -60,7 +61,12 @@ def run(args: argparse.Namespace) -> int:
     config = live_config(args.config, path)
     log_dir = Path(args.mcap).parent if args.mcap else log_folder()
     plan = EmulatorPlan(
-        config=config, args=cli_values(args), log_dir=log_dir, scenario=path, speed=args.speed
+        config=config,
+        args=cli_values(args),
+        log_dir=log_dir,
+        scenario=path,
+        speed=args.speed,
+        lag_s=args.lag,
     )
     announce(config, lambda m: print(f"bench: {m}", file=sys.stderr))  # before the screen
     session = start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))

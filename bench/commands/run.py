@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from types import FrameType
 from typing import TYPE_CHECKING, Any, TextIO
 
-from bench.commands.argtypes import SECONDS
+from bench.commands.argtypes import SECONDS, add_lag_argument
 from bench.config_choice import announce, live_config
 from bench.live.setup import (
     LiveSetup,
@@ -42,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "print a status line; log every frame and result to MCAP.",
     )
     add_live_arguments(p)
+    add_lag_argument(p)
     p.add_argument("--duration", type=SECONDS, metavar="S", help="stop after S seconds")
     p.add_argument("--csv", metavar="OUT", help="also write the per-sample results as CSV")
     p.add_argument("--quiet", "-q", action="store_true", help="no status line or summary")
@@ -177,7 +178,9 @@ def _run(args: argparse.Namespace) -> int:
     from bench.pipeline.warmup import prepare
 
     prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start: before the run
-    runner = LiveRunner(setup.source, config, sinks, description=setup.description)
+    runner = LiveRunner(
+        setup.source, config, sinks, description=setup.description, lag_s=getattr(args, "lag", None)
+    )
     runner.recording = recording
     start = time.monotonic()
     tty = sys.stderr.isatty()

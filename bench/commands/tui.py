@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from bench.commands.argtypes import add_lag_argument
 from bench.config import Config
 from bench.config_choice import announce, live_config, replay_config, replay_hint
 from bench.defaults import log_folder
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "See docs/TUI.md.",
     )
     add_live_arguments(p)
+    add_lag_argument(p)
     g = p.add_argument_group("replay")
     g.add_argument(
         "--replay",
@@ -86,9 +88,8 @@ def replay_extras(args: argparse.Namespace, config: Config, log_dir: Path) -> di
 
     def restart(paused: bool) -> SessionLike:
         speed = SPEED_CHOICES[args.speed]
-        return live_session(
-            replay_setup(args.replay, config, speed=speed, paused=paused), config, None, log_dir
-        )
+        setup = replay_setup(args.replay, config, speed=speed, paused=paused)
+        return live_session(setup, config, None, log_dir, lag_s=getattr(args, "lag", None))
 
     return {"restart": restart, "recorded_marks": recorded_marks(Path(args.replay))}
 
@@ -117,7 +118,9 @@ def run_live(args: argparse.Namespace, config: Config, log_dir: Path) -> Session
     from bench.engine.client import start_engine
     from bench.engine.plans import LivePlan, cli_values
 
-    plan = LivePlan(config=config, args=cli_values(args), log_dir=log_dir)
+    plan = LivePlan(
+        config=config, args=cli_values(args), log_dir=log_dir, lag_s=getattr(args, "lag", None)
+    )
     return start_engine(plan, warn=lambda m: print(f"bench: {m}", file=sys.stderr))
 
 
@@ -143,7 +146,7 @@ def run_replay(args: argparse.Namespace, config: Config, log_dir: Path) -> Sessi
         from bench.live.setup import start_recording
 
         first = start_recording(Path(args.mcap), setup, config)
-    return live_session(setup, config, first, log_dir)
+    return live_session(setup, config, first, log_dir, lag_s=getattr(args, "lag", None))
 
 
 def report(session: SessionLike) -> None:

@@ -31,6 +31,7 @@ class EnginePlan:
     config: Config
     log_dir: Path = DEFAULT_LOG_DIR
     record: bool = True
+    lag_s: float | None = None  # `--lag`: the live model with this fixed lag (None: none)
 
     def open_setup(self) -> LiveSetup:
         raise NotImplementedError
@@ -53,7 +54,9 @@ class EnginePlan:
                 sink.close()
             setup.close()
             raise
-        session = live_session(setup, self.config, first, self.log_dir, record=self.record)
+        session = live_session(
+            setup, self.config, first, self.log_dir, record=self.record, lag_s=self.lag_s
+        )
         assert session.runner is not None  # live_session always builds its runner
         for sink in extra:
             session.runner.add_sink(sink)

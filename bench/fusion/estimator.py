@@ -39,7 +39,7 @@ from bench.records.events import EVENT_DTYPE
 from protocol.layout import TICK_S
 
 if TYPE_CHECKING:
-    from bench.fusion.model.log import ModelLog
+    from bench.fusion.model.log import ModelFeed
 
 ESTIMATE_DTYPE = np.dtype(
     [
@@ -118,7 +118,7 @@ class Estimator:
         _reasons_run(np.zeros(0, np.int8), none, none, none, np.zeros((3, 0), np.int64))
         _starts_run(np.zeros(3, np.bool_), none, np.zeros((3, 0), np.int64), np.zeros(0, np.int8))
         self._named = -1  # the channel the current residual alarm named (-1: none)
-        self.log: ModelLog | None = None  # keeps the filter's inputs for the smoother
+        self.log: ModelFeed | None = None  # the filter's inputs, for the model (log or live)
 
     def push(
         self, samples: np.ndarray, acc: np.ndarray, usable: np.ndarray, speeds: np.ndarray
@@ -158,7 +158,7 @@ class Estimator:
         starts = np.empty(n, np.int8)
         _starts_run(before, latched, reason, starts)
         if self.log is not None:
-            self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied)
+            self.log.add(ticks * TICK_S, acc.T, code, self.a_ref.applied, samples["t"])
         fo = self.filter.push(ticks * TICK_S, u, w, code, residual, starts, self.a_ref.applied)
         out["gradient_signed"] = fo.gradient
         out["gradient_sigma"] = fo.sigma

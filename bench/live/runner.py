@@ -20,7 +20,7 @@ import queue
 import threading
 import time
 from collections import Counter, deque
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,6 +32,9 @@ from bench.records.events import EventKind, concat_events, describe, make_events
 from bench.sinks.base import Sink
 from devices.base import LiveSource, SourceBatch
 from devices.cpu_placement import live_cpus, pin_thread
+
+if TYPE_CHECKING:
+    from bench.live.model import LiveModel
 
 MAX_COALESCE = 512
 HOLD_MAX_FRAMES = 1_000_000
@@ -84,13 +87,20 @@ class LiveRunner:
         read_timeout: float = 0.05,
         warm_up: KernelWarmUp | None = None,
         hold_max_frames: int = HOLD_MAX_FRAMES,
+        lag_s: float | None = None,
     ) -> None:
         self.source = source
         self.config = config
+        # the explicit model behind the pipeline, on its own thread (`--lag`; None: not run)
+        self.model: LiveModel | None = None
+        if lag_s is not None:
+            from bench.live.model import LiveModel
+
+            self.model = LiveModel(config, lag_s)
         # the estimator's kernel still compiling (first start): a preview pipeline until then
         self._warmup = warm_up if warm_up is not None else KernelWarmUp.if_needed()
         if self._warmup is None:
-            self.pipeline = Pipeline(config)
+            self.pipeline = self._attach_model(Pipeline(config))
         else:
             self.pipeline = Pipeline(config, estimator=PendingEstimator())
         self._held: list[tuple[str, Any]] = []  # batches, tolerance changes, marks, events
@@ -240,10 +250,15 @@ class LiveRunner:
                 self._warmup.wait()
                 self._catch_up()
             self._deliver(self.pipeline.finish())
+            if self.model is not None:  # its last blocks, smoothed given all there is
+                self.model.close()
+                self._deliver(StepOutput())
         except Exception as exc:
             self.error = f"processing stopped: {exc!r}"
             raise
         finally:
+            if self.model is not None:  # stopped by an error: its thread must end too
+                self.model.close(timeout=1.0)
             with self._lock:
                 sinks = list(self._sinks)
             # secondary outputs first: a failure they find while finishing (the last rows,
@@ -309,6 +324,7 @@ class LiveRunner:
                 raise RuntimeError(f"the estimator could not be prepared: {warmup.error}") from exc
         else:
             full = Pipeline(self.config)
+        self._attach_model(full)
         full.tolerance_permil = self.config.tolerance_permil
         self._catch_up_ring = ResultRing(HISTORY)
         while True:
@@ -349,8 +365,16 @@ class LiveRunner:
                     sink.mark(*item)
         flush()
 
+    def _attach_model(self, pipeline: Pipeline) -> Pipeline:
+        """The live model gets what ``pipeline``'s estimator's filter is given."""
+        if self.model is not None:
+            pipeline.estimator.log = self.model  # type: ignore[attr-defined]  # Estimator's
+        return pipeline
+
     def _deliver(self, step: StepOutput) -> None:
         now = time.time()
+        if self.model is not None:  # the rows the model made meanwhile go with this step
+            step.model = self.model.take_rows()
         with self._lock:
             sinks = list(self._sinks)
         if self._carry_events:  # told in the step after the failure: the MCAP logs it too
@@ -442,4 +466,5 @@ class LiveRunner:
             marks=self.marks,
             output_errors=list(self.output_errors),
             warmup=warmup,
+            model=self.model.view() if self.model is not None else None,
         )

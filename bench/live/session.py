@@ -317,15 +317,19 @@ def live_session(
     log_dir: Path = DEFAULT_LOG_DIR,
     *,
     record: bool = True,
+    lag_s: float | None = None,
 ) -> Session:
-    """A session on a live source; ``r`` opens new files in ``log_dir``."""
+    """A session on a live source; ``r`` opens new files in ``log_dir``; ``lag_s``: the
+    live model with that fixed lag (None: no model)."""
 
     def open_sink() -> Any:
         return start_recording(default_log_path(setup.slug, log_dir), setup, config)
 
     return Session.create(
         setup,
-        lambda sinks: LiveRunner(setup.source, config, sinks, description=setup.description),
+        lambda sinks: LiveRunner(
+            setup.source, config, sinks, description=setup.description, lag_s=lag_s
+        ),
         open_sink if record else None,
         first_sink,
     )

@@ -53,6 +53,22 @@ class ResultRing:
         return np.concatenate([self._buf[start:], self._buf[: self._pos]])
 
 
+@dataclass(frozen=True)
+class ModelView:
+    """The explicit model of a live run (`--lag`, bench.live.model): what its panel and the
+    plot's lagged line show."""
+
+    lag_s: float
+    latest: np.void | None  # the filter's newest block (bench.records.model.MODEL_DTYPE)
+    lagged: np.ndarray  # (k, 3): board time s, lagged gradient and its sigma permil, oldest first
+    blocks: int  # blocks the model has run
+    queued_samples: int  # waiting for the model thread
+    dropped_pushes: int  # pushes a full queue dropped (the model then differs from a replay)
+    dropped_samples: int
+    ready: bool  # its kernels are loaded
+    error: str | None = None
+
+
 @dataclass
 class Snapshot:
     """A consistent copy of the run's state for a UI; cheap enough to take at a few Hz."""
@@ -77,6 +93,7 @@ class Snapshot:
     extra: dict[str, Any] = field(default_factory=dict)
     output_errors: list[str] = field(default_factory=list)  # failed secondary outputs (CSV)
     warmup: WarmUpStatus | None = None  # the estimator's kernel still being prepared
+    model: ModelView | None = None  # the explicit model, when the run has it (--lag)
 
 
 class RecorderControl(Protocol):

@@ -298,6 +298,18 @@ class MessageEncoder:
         payload = json.dumps(d, separators=(",", ":")).replace("NaN", "null").encode()
         self._json(S.HEALTH_TOPIC, np.array([t]), [payload], fallback_ns)
 
+    def write_model(self, rows: np.ndarray, fallback_ns: int) -> None:
+        """The live model's rows (MODEL_DTYPE); its channel is added with the first."""
+        if not len(rows):
+            return
+        if S.MODEL_TOPIC not in self.cid:
+            spec = S.MODEL_TOPIC_SPEC
+            sid = self.mf.add_schema(spec.schema_name, spec.schema_encoding, spec.schema_data)
+            self.cid[spec.topic] = self.mf.add_channel(
+                spec.topic, spec.message_encoding, sid, {"description": spec.description}
+            )
+        self._json(S.MODEL_TOPIC, rows["t"], S.encode_rows(rows, S.MODEL_COLUMNS), fallback_ns)
+
     def write_truth(
         self, rows: np.ndarray, columns: Sequence[S.Column], t: np.ndarray, fallback_ns: int
     ) -> None:

@@ -15,6 +15,7 @@ from bench.errors import BenchError
 from bench.mcaplog import schemas as S
 from bench.mcaplog.reader import McapLog
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE
+from bench.records.model import MODEL_DTYPE
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import SAMPLE_DTYPE
 from devices.base import SourceNotice
@@ -62,6 +63,11 @@ def read_status(source: str | Path | McapLog) -> np.ndarray:
 
 def read_speed(source: str | Path | McapLog) -> np.ndarray:
     return _with(source, lambda lg: lg.table(S.SPEED_TOPIC, S.SPEED_COLUMNS, SPEED_DTYPE))
+
+
+def read_model(source: str | Path | McapLog) -> np.ndarray:
+    """The live model's rows (MODEL_DTYPE, `--lag`); none in a run without the model."""
+    return _with(source, lambda lg: lg.table(S.MODEL_TOPIC, S.MODEL_COLUMNS, MODEL_DTYPE))
 
 
 def read_events(source: str | Path | McapLog) -> list[dict[str, Any]]:

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE
+from bench.records.model import MODEL_DTYPE
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import SAMPLE_DTYPE
 from protocol.layout import BoardState, Outcome
@@ -35,6 +36,7 @@ SPEED_TOPIC = "/bench/speed"
 HEALTH_TOPIC = "/bench/health"
 EVENT_TOPIC = "/bench/events"
 TRUTH_TOPIC = "/emulator/truth"
+MODEL_TOPIC = "/bench/model"
 
 PROFILE = ""
 """MCAP header profile: none of the well-known ones applies (documented in docs/MCAP.md)."""
@@ -551,6 +553,23 @@ TOPICS: tuple[TopicSpec, ...] = (
 def result_topic(columns: Sequence[Column]) -> TopicSpec:
     """The results' topic with the given columns (:func:`result_schema`)."""
     return _json_topic(RESULT_TOPIC, result_schema(columns), "fusion results (every CSV column)")
+
+
+MODEL_COLUMNS = columns_for(
+    MODEL_DTYPE, {"bias": ["b1", "b2", "b3"], "bias_sigma": ["b1_sigma", "b2_sigma", "b3_sigma"]}
+)
+MODEL_SCHEMA = object_schema(
+    "acb3.bench.Model",
+    "The explicit model of a live run (--lag), one message per block (BLOCK_S): the filter's "
+    "gradient, wheel-diameter error E (1), body-pitch compliance C (deg per m/s^2) and channel "
+    "biases b1-b3 (m/s^2), each with its 1-sigma, and the gradient fixed-lag smoothed with "
+    "lag_s of samples after the block. Floats round-trip exactly; null = NaN.",
+    MODEL_COLUMNS,
+)
+MODEL_TOPIC_SPEC = _json_topic(
+    MODEL_TOPIC, MODEL_SCHEMA, "the explicit model's live estimates (--lag), per block"
+)
+"""Only in a log whose run had the model: added with its first message."""
 
 
 def truth_topic(columns: Sequence[Column]) -> TopicSpec:

@@ -273,6 +273,7 @@ class McapSink(QueuedSink):
         enc.write_status(step.status, wall)
         enc.write_speed(step.speed, wall)
         enc.write_events(step.events, wall)
+        enc.write_model(step.model, wall)
         self._health(step, wall)
         if self._file is not None and self._file.pending_messages:
             self._opened(since)

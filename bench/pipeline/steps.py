@@ -25,6 +25,7 @@ from bench.pipeline.stats import Stats
 from bench.records.arrays import concat_records
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
+from bench.records.model import NO_MODEL_ROWS
 from bench.records.results import RESULT_DTYPE
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
 from devices.base import SourceBatch
@@ -101,9 +102,11 @@ class StepOutput:
     status: np.ndarray = field(default_factory=lambda: np.zeros(0, STATUS_DTYPE))
     speed: np.ndarray = field(default_factory=lambda: np.zeros(0, SPEED_DTYPE))
     batch: SourceBatch | None = None
+    # the explicit model's rows a live run made meanwhile (`--lag`: bench.live.model)
+    model: np.ndarray = field(default_factory=lambda: NO_MODEL_ROWS)
 
 
-STEP_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed")
+STEP_ARRAYS = ("frames", "outcome", "samples", "results", "events", "status", "speed", "model")
 """The array fields of a StepOutput, in the order the MCAP writer takes them."""
 
 

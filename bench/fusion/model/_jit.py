@@ -11,5 +11,7 @@ Fn = TypeVar("Fn", bound=Callable[..., Any])
 
 
 def jit(fn: Fn) -> Fn:
-    """Compile ``fn`` in nopython mode with numba's disk cache; the same signature for mypy."""
-    return cast(Fn, njit(cache=True)(fn))
+    """Compile ``fn`` in nopython mode with numba's disk cache, releasing the GIL while it
+    runs (the live model's thread then never holds up acquisition); the same signature
+    for mypy."""
+    return cast(Fn, njit(cache=True, nogil=True)(fn))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -99,6 +100,20 @@ def channel_inputs(acc: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.where(used, y, 0.0), used
 
 
+class ModelFeed(Protocol):
+    """What the estimator hands its filter's inputs to: a :class:`ModelLog` (replay), or
+    the live model (bench.live.model)."""
+
+    def add(
+        self,
+        b: np.ndarray,
+        acc: np.ndarray,
+        mask: np.ndarray,
+        frames: tuple[np.ndarray, ...] | None,
+        t: np.ndarray | None = None,
+    ) -> None: ...
+
+
 class ModelLog:
     """Keeps the estimator's inputs of a run (see :meth:`add`)."""
 
@@ -115,10 +130,12 @@ class ModelLog:
         acc: np.ndarray,
         mask: np.ndarray,
         frames: tuple[np.ndarray, ...] | None,
+        t: np.ndarray | None = None,
     ) -> None:
         """b (N,) board time s; acc (N, 3) calibrated m/s^2; mask (N,) the channels used,
         bit c for channel c + 1; frames as the filter gets them (anchor index into this
-        push, board time measured, speed m/s, restart, standstill) or None."""
+        push, board time measured, speed m/s, restart, standstill) or None; t the samples'
+        receive times (a live log's time stamps; the smoother does not need them)."""
         n = len(b)
         y, used = channel_inputs(acc, mask)
         self._b.append(np.array(b, dtype=np.float64))
