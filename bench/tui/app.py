@@ -39,6 +39,7 @@ from bench.tui.panels import duration_text
 from bench.tui.panels.board import BoardPanel
 from bench.tui.panels.channels import ChannelsPanel, RateMeter
 from bench.tui.panels.events import EventsPanel, MarksPanel, kind_name
+from bench.tui.panels.model import ModelPanel
 from bench.tui.panels.pairs import PairsPanel
 from bench.tui.panels.plot import (
     WINDOWS_S,
@@ -148,6 +149,7 @@ class BenchApp(App[int]):
         self.stop_error: str | None = None
         self.marks = 0  # operator marks (the runner also counts tolerance changes as marks)
         self.seek_label = "vote failure"  # what a replay's seek runs to (status bar)
+        self.lag_s: float | None = None  # the live model's lag, once a snapshot has it
 
     # -- layout ---------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -164,6 +166,7 @@ class BenchApp(App[int]):
             yield EventsPanel(marks, id="events", classes="panel")
             with Vertical(id="side"):
                 yield RecordingPanel(id="recording", classes="panel")
+                yield ModelPanel(id="model", classes="panel")
                 yield marks
         yield Footer(compact=True)
 
@@ -256,7 +259,10 @@ class BenchApp(App[int]):
         pacer = self.plot_pacer
         if not (force or pacer.due()):
             return None, rate_values
-        series = prepare_series(snap.results, self.window_s, max_points=max(50, 2 * width))
+        lagged = snap.model.lagged if snap.model is not None else None
+        series = prepare_series(
+            snap.results, self.window_s, max_points=max(50, 2 * width), lagged=lagged
+        )
         with self._plot_lock:
             started = pacer.clock()
             plot = render_plot(self._plot, series, width, height)
@@ -311,6 +317,11 @@ class BenchApp(App[int]):
             snap.recording, extra.get("last_recording"), extra.get("foxglove"), snap.warmup
         )
         self.query_one(EventsPanel).show(snap.events)
+        self.query_one(ModelPanel).show(snap.model)
+        lag = snap.model.lag_s if snap.model is not None else None
+        if lag != self.lag_s:  # the plot's legend names the lagged line
+            self.lag_s = lag
+            self.query_one("#plot").border_title = self._plot_title()
         self.snapshots_applied += 1
 
     def redraw_plot(self) -> None:
@@ -404,7 +415,7 @@ class BenchApp(App[int]):
     def _plot_title(self) -> str:
         w = self.window_s
         span = f"{w:.0f} s" if w < 120 else f"{w / 60:.0f} min"
-        return f"Gradient ‰ · last {span} · {legend_markup()}"
+        return f"Gradient ‰ · last {span} · {legend_markup(self.lag_s)}"
 
     # -- actions --------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from rich.text import Text
 
 MISSING = "—"
 
@@ -18,6 +19,18 @@ def num(value: float, fmt: str = ".3f", missing: str = MISSING) -> str:
     if value is None or not math.isfinite(float(value)):
         return missing
     return format(float(value), fmt)
+
+
+def labelled(lines: list[tuple[str, Text | str]], width: int = 8) -> Text:
+    """One line per (label, value), the label bold in a column ``width`` wide; long lines
+    end in an ellipsis."""
+    out = Text(no_wrap=True, overflow="ellipsis")
+    for label, value in lines:
+        if out:
+            out.append("\n")
+        out.append(f"{label:<{width}}", style="bold")
+        out.append(value)
+    return out
 
 
 def size_text(n: float | None) -> str:

@@ -8,7 +8,7 @@ from textual.widgets import Static
 
 from bench.live.view import Snapshot
 from bench.records.events import EventKind
-from bench.tui.panels import MISSING, num
+from bench.tui.panels import MISSING, labelled, num
 from protocol.layout import BoardState
 
 STATE_STYLE = {
@@ -83,13 +83,7 @@ def board_lines(s: Snapshot, *, live: bool = True, rows: int | None = None) -> T
     lines.append(("samples", f"{st.samples} lost {st.samples_lost} valid {valid}"))
     if rows is not None and len(lines) > rows:
         lines = lines[1:]
-    out = Text(no_wrap=True, overflow="ellipsis")
-    for label, value in lines:
-        if out:
-            out.append("\n")
-        out.append(f"{label:<8}", style="bold")
-        out.append(value)
-    return out
+    return labelled(lines)
 
 
 def _counts(*counts: tuple[str, int, str]) -> Text:

@@ -1,4 +1,5 @@
-"""Gradient history: the final gradient, the three pair traces and our signed estimate.
+"""Gradient history: the final gradient, the three pair traces and our signed estimate, and
+with `--lag` the live model's fixed-lag smoothed gradient (drawn at its own, earlier, time).
 
 The series are cut to the selected window and thinned to about two points per column in
 the poller thread (:func:`prepare_series`), so the UI thread only draws a few hundred points.
@@ -17,6 +18,8 @@ from rich.text import Text
 from textual.widgets import Static
 from textual_plotext.plot import Plot
 
+from protocol.layout import TICK_S
+
 WINDOWS_S = (10.0, 30.0, 60.0, 300.0)
 """Selectable plot windows (the runner keeps 60000 results: 5 min at 200 Hz, 1 min at 1 kHz)."""
 
@@ -32,15 +35,23 @@ are RGB, not colour names: plotext's names go through the terminal's palette (wh
 yellow came out alike, magenta as the FAIL pink), these reach the screen as written."""
 
 
+LAGGED_TRACE = ("lagged", "lag", "#ff8c40")
+"""The live model's fixed-lag gradient (`--lag`): drawn under the final gradient."""
+
+
 def rgb(color: str) -> tuple[int, int, int]:
     """'#rrggbb' as the (r, g, b) plotext takes."""
     return (int(color[1:3], 16), int(color[3:5], 16), int(color[5:7], 16))
 
 
-def legend_markup() -> str:
-    """The legend in the panel title, in the traces' own colours (final first)."""
+def legend_markup(lag_s: float | None = None) -> str:
+    """The legend in the panel title, in the traces' own colours (final first); with
+    ``lag_s`` the model's lagged line too."""
     order = sorted(TRACES, key=lambda tr: tr[0] != "gradient")
-    return " ".join(f"[{color}]{label}[/]" for _, label, color in order)
+    text = " ".join(f"[{color}]{label}[/]" for _, label, color in order)
+    if lag_s is not None:
+        text += f" [{LAGGED_TRACE[2]}]{LAGGED_TRACE[1]} {lag_s:g} s[/]"
+    return text
 
 
 def nice_step(span: float, max_ticks: int) -> float:
@@ -110,10 +121,18 @@ class PlotSeries:
     x: np.ndarray
     y: dict[str, np.ndarray]
     span_s: float  # how much history there actually is
+    lagged: tuple[np.ndarray, np.ndarray] | None = None  # the model's (x, y), its own times
 
 
-def prepare_series(results: np.ndarray, window_s: float, max_points: int = 400) -> PlotSeries:
-    """Cut the last ``window_s`` of results (board time) and thin to ``max_points``.
+def prepare_series(
+    results: np.ndarray,
+    window_s: float,
+    max_points: int = 400,
+    lagged: np.ndarray | None = None,
+) -> PlotSeries:
+    """Cut the last ``window_s`` of results (board time) and thin to ``max_points``;
+    ``lagged`` (k, 3): the model's board time, lagged gradient and sigma, put on the same
+    axis by the newest result's board time.
 
     Thinning keeps, per bucket, the sample with the largest final gradient change, so a
     one-sample dropout or spike still shows (plain striding would usually skip it)."""
@@ -140,7 +159,16 @@ def prepare_series(results: np.ndarray, window_s: float, max_points: int = 400) 
         "g13": sel["slopes"][:, 2].astype(np.float64),
         "signed": sel["gradient_signed"].astype(np.float64),
     }
-    return PlotSeries(window_s, x, y, t_end - float(t[start]))
+    lag = None
+    if lagged is not None:
+        lx = lagged[:, 0] - float(results["ticks"][-1]) * TICK_S
+        keep = lx >= -window_s
+        lx, ly = lx[keep], lagged[keep, 1]
+        if len(lx) > max_points:
+            pick = np.linspace(0, len(lx) - 1, max_points).astype(np.int64)
+            lx, ly = lx[pick], ly[pick]
+        lag = (lx, ly)
+    return PlotSeries(window_s, x, y, t_end - float(t[start]), lag)
 
 
 def render_plot(plot: Plot, series: PlotSeries | None, width: int, height: int) -> Text:
@@ -160,15 +188,20 @@ def render_plot(plot: Plot, series: PlotSeries | None, width: int, height: int) 
     lo, hi = y_range(series)
     if series is not None and len(series.x):
         for key, _label, color in TRACES:
-            y = series.y[key]
-            ok = np.isfinite(y)
-            if ok.any():
-                # clip (rather than drop) what is off the scale, so it shows at the edge
-                ys = np.clip(y[ok], lo, hi)
-                plot.plot(series.x[ok].tolist(), ys.tolist(), color=rgb(color), marker="braille")
+            if key == "gradient" and series.lagged is not None:  # under the final gradient
+                _line(plot, *series.lagged, LAGGED_TRACE[2], lo, hi)
+            _line(plot, series.x, series.y[key], color, lo, hi)
     plot.ylim(lo, hi)
     plot.yticks(*y_ticks(lo, hi, max(4, height)))
     return Text.from_ansi(plot.build(), no_wrap=True)
+
+
+def _line(plot: Plot, x: np.ndarray, y: np.ndarray, color: str, lo: float, hi: float) -> None:
+    ok = np.isfinite(y)
+    if ok.any():
+        # clip (rather than drop) what is off the scale, so it shows at the edge
+        ys = np.clip(y[ok], lo, hi)
+        plot.plot(x[ok].tolist(), ys.tolist(), color=rgb(color), marker="braille")
 
 
 def y_range(series: PlotSeries | None) -> tuple[float, float]:
@@ -187,6 +220,9 @@ def y_range(series: PlotSeries | None) -> tuple[float, float]:
             keep.append(y)
         else:
             keep.append(np.percentile(y, [5.0, 95.0]))
+    if series.lagged is not None:
+        lag = series.lagged[1]
+        keep.append(lag[np.isfinite(lag)])
     if not keep:
         return -1.0, 1.0
     all_y = np.concatenate(keep)
