@@ -76,7 +76,10 @@ class TuiRun:
         return "\n".join(lines)
 
 
-def run(seconds: float = 60.0, workdir: str | None = None, marks: int = 3) -> TuiRun:
+def run(
+    seconds: float = 60.0, workdir: str | None = None, marks: int = 3, lag_s: float | None = None
+) -> TuiRun:
+    """One run; ``lag_s``: with the live model (`--lag`), its panel and lagged line drawn."""
     from bench.config import Config
     from bench.engine.client import start_engine
     from bench.engine.plans import BoardPlan
@@ -94,6 +97,7 @@ def run(seconds: float = 60.0, workdir: str | None = None, marks: int = 3) -> Tu
             mcap=path,
             log_dir=Path(tmp),
             description="virtual board 1 kHz",
+            lag_s=lag_s,
         )
         session = start_engine(plan)
         try:
@@ -163,8 +167,9 @@ def _collect(out: TuiRun, session: Any, path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--seconds", type=float, default=60.0, help="run length (default 60)")
+    p.add_argument("--lag", type=float, metavar="S", help="with the live model, lag S seconds")
     args = p.parse_args(argv)
-    result = run(args.seconds)
+    result = run(args.seconds, lag_s=args.lag)
     print(result.report())
     return 0 if result.ok else 1
 
