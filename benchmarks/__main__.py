@@ -217,7 +217,7 @@ def _measurement_of(fig: dict[str, Any]) -> str:
     key = str(fig.get("key", ""))
     if key.startswith("live_max_rate"):
         return "live_rate"
-    if key.startswith(("replay_process_", "replay_first_step")):
+    if key.startswith(("replay_process_", "replay_first_step", "replay_first_row")):
         return "replay_process"
     if key.startswith("replay_rss_"):  # outputs.measure_memory's figures
         return "replay_memory"

@@ -198,6 +198,7 @@ def test_every_figure_key_names_the_plan_measurement_that_makes_it() -> None:
         "replay_rss_growth": "replay_memory",
         "replay_process_csv": "replay_process",
         "replay_first_step": "replay_process",
+        "replay_first_row": "replay_process",
         "live_max_rate_strict": "live_rate",
         "fleet_speedup": "fleet",
     }

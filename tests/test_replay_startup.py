@@ -1,7 +1,8 @@
-"""A replay's start overlaps its parts: the log is read while the pipeline is built, the
-estimator's kernels load while the command opens its files, and the joint filter's loop
-lets the reading and the writer run while it computes (issue 29; the read-ahead's tests
-are in test_prefetch.py). Behaviour only; the times are in benchmarks/replay_process.py."""
+"""A replay's start overlaps its parts: the log is read while the pipeline is built, its
+first frames are decoded and fused while the estimator's kernels load (test_replay_stages.py),
+and the joint filter's loop lets the reading and the writer run while it computes (issue 29;
+the read-ahead's tests are in test_prefetch.py). Behaviour only; the times are in
+benchmarks/replay_process.py."""
 
 from __future__ import annotations
 
@@ -10,36 +11,17 @@ import sys
 import textwrap
 
 
-def test_kernels_in_the_cache_load_in_the_background_and_others_are_left_to_prepare() -> None:
-    code = textwrap.dedent(
-        """
-        from bench.pipeline.warmup import kernel_is_ready, load_in_background
-        ready = kernel_is_ready()
-        load_in_background().join()
-        from bench.fusion import isolation, joint_kernel
-        loaded = [bool(k.overloads) for k in (joint_kernel.run, *isolation.KERNELS)]
-        print(ready, all(loaded), any(loaded))
-        """
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True
-    ).stdout.split()
-    ready = out[0] == "True"
-    # cached: every kernel loaded; not cached: none compiled here (prepare() says so first)
-    assert out[1:] == (["True", "True"] if ready else ["False", "False"])
-
-
 def test_the_joint_filter_loop_lets_other_threads_run() -> None:
     from bench.fusion import joint_kernel
 
     assert joint_kernel.run.targetoptions.get("nogil") is True
 
 
-def test_a_replay_that_fails_at_once_ends_only_after_the_kernels_loading(tmp_path) -> None:
-    """A mistake in the arguments ends the command before the background load is done; the
-    command waits for it, so the interpreter never shuts down under a thread inside numba's
-    loader (`python -m bench replay missing.log` ended by SIGSEGV instead of exit 2). In a
-    fresh interpreter: in this one the kernels are loaded already."""
+def test_a_replay_that_fails_at_once_leaves_no_thread_and_never_loads_numba(tmp_path) -> None:
+    """A mistake in the arguments ends the command before any kernel is loaded: no thread is
+    left for the interpreter to shut down under (a load thread inside numba's loader made
+    `python -m bench replay missing.log` end by SIGSEGV instead of exit 2), and numba is
+    not even imported. In a fresh interpreter: in this one the kernels are loaded already."""
     code = textwrap.dedent(
         f"""
         import argparse, threading
@@ -53,11 +35,21 @@ def test_a_replay_that_fails_at_once_ends_only_after_the_kernels_loading(tmp_pat
             replay.run(args)
         except BenchError as exc:
             print("error:", exc)
-        print("threads:", sorted(t.name for t in threading.enumerate()))
+        import sys
+        print("threads:", sorted(t.name for t in threading.enumerate()), "numba" in sys.modules)
         """
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     error, threads = done.stdout.splitlines()
     assert error.startswith("error: log file not found") and "missing.log" in error
-    assert threads == "threads: ['MainThread']"
+    assert threads == "threads: ['MainThread'] False"
+
+
+def test_the_pipeline_and_the_replay_import_without_numba() -> None:
+    """The first stage needs no compiled kernel: importing the pipeline and the replay
+    must not import numba (its import and cache load are what the first frames must not
+    wait for; the estimator imports it when it is built)."""
+    code = "import sys, bench.replay.run, bench.pipeline.steps; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False"]

@@ -81,19 +81,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from bench.pipeline.warmup import load_in_background
-
-    loading = load_in_background()  # the kernels load while the files are checked and opened
-    try:
-        return _replay(args)
-    finally:
-        # a mistake in the arguments ends the command within milliseconds: the interpreter
-        # must not shut down under a thread still inside numba's loader (it crashed with
-        # SIGSEGV instead of exiting 2); after a replay the load is long done
-        loading.join()
-
-
-def _replay(args: argparse.Namespace) -> int:
     from bench.records.columns import RESULTS
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
@@ -152,8 +139,10 @@ def _replay(args: argparse.Namespace) -> int:
         abort_all(sinks)
         source.close()
         raise
-    prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
     from bench.replay.run import no_frames, replay  # the pipeline: after the files are open
+
+    def first_start() -> None:  # the replay's first frames are decoded meanwhile
+        prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
 
     total = source.size_bytes()
     show = not args.quiet and console.is_terminal and total > 2_000_000
@@ -187,9 +176,10 @@ def _replay(args: argparse.Namespace) -> int:
                     feed,
                     collect=False,
                     on_progress=lambda pos: progress.update(task, completed=pos),
+                    before_estimator=first_start,
                 )
         else:
-            outcome = replay(source, config, feed, collect=False)
+            outcome = replay(source, config, feed, collect=False, before_estimator=first_start)
         if not outcome.pipeline.stats.frames:
             raise no_frames(args.input, outcome.notices)
         if joined is not None:

@@ -36,26 +36,11 @@ from bench.fusion.least_squares import (
 )
 from bench.fusion.speed_ref import ReferenceAcceleration
 from bench.records.events import EVENT_DTYPE
+from bench.records.results import ESTIMATE_DTYPE
 from protocol.layout import TICK_S
 
 if TYPE_CHECKING:
     from bench.fusion.model.log import ModelFeed
-
-ESTIMATE_DTYPE = np.dtype(
-    [
-        ("gradient_signed", "<f8"),
-        ("gradient_ls", "<f8"),
-        ("u", "<f8"),
-        ("w", "<f8"),
-        ("a_ref", "<f8"),
-        ("residual", "<f8"),
-        ("degraded", "?"),
-        ("excluded", "u1"),
-        ("gradient_sigma", "<f8"),
-        ("odometer_suspect", "?"),
-        ("coasting", "?"),
-    ]
-)
 
 _EXCLUDED_OF_MASK = np.array((1, 2, 1, 3, 1, 2, 1, 0), dtype=np.uint8)
 """Channel reported as excluded, by mask of channels used: the one left out of a pair,

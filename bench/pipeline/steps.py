@@ -4,6 +4,13 @@ decode (protocol.batch) -> assemble (bench.pipeline.assembly) -> reference fusio
 Stateful across batches, and its output does not depend on how the stream is batched,
 so a live run and the replay of its log give the same rows bit for bit.
 
+A step is two stages, :meth:`Pipeline.reference` (decode, assembly, the reference method:
+every column but the estimator's) and :meth:`Pipeline.estimate` (the estimator's columns and
+events, the step's counts); :meth:`Pipeline.process` runs both. A replay runs them in two
+threads (bench.replay.run), so the first frames are decoded and fused while the estimator's
+kernels load; each stage sees the same calls in the same order either way, so the rows are
+the same bits.
+
 A live step carries a few frames and usually nothing else, so every stage returns early
 (shared empty arrays) when it has nothing to do: the processing thread shares the GIL
 with acquisition and logging, and its fixed cost per step is the live latency.
@@ -18,7 +25,6 @@ from typing import Protocol
 import numpy as np
 
 from bench.config import Config
-from bench.fusion.estimator import ESTIMATE_DTYPE, Estimator
 from bench.fusion.reference import fuse
 from bench.pipeline.assembly import Assembler
 from bench.pipeline.stats import Stats
@@ -26,7 +32,7 @@ from bench.records.arrays import concat_records
 from bench.records.board import SPEED_DTYPE, STATUS_DTYPE, speed_records, status_records
 from bench.records.events import EVENT_DTYPE, NO_EVENTS, EventKind, concat_events, make_events
 from bench.records.model import NO_MODEL_ROWS
-from bench.records.results import RESULT_DTYPE
+from bench.records.results import ESTIMATE_DTYPE, RESULT_DTYPE
 from bench.records.samples import NO_SAMPLES, SAMPLE_DTYPE, usable
 from devices.base import SourceBatch
 from protocol.batch import EMPTY_DECODED, DecodedBatch, decode_batch
@@ -42,6 +48,8 @@ _NOTICE_KINDS = {
 _VOTE_FAIL, _INVALID = int(EventKind.VOTE_FAIL), int(EventKind.INVALID)
 _NO_RESULTS = np.zeros(0, dtype=RESULT_DTYPE)
 _NO_FRAMES = empty_frames()
+_NO_ACC = np.zeros((0, 3))
+_NO_USABLE = np.zeros((0, 3), bool)
 
 
 class _ByteRuns:
@@ -146,11 +154,35 @@ class EstimatorLike(Protocol):
     ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+def new_estimator(config: Config) -> EstimatorLike:
+    """The bench's estimator (its kernels compiled or loaded from numba's cache now: numba is
+    imported here, not with this module)."""
+    from bench.fusion.estimator import Estimator
+
+    return Estimator(config)
+
+
+@dataclass(slots=True)
+class Referenced:
+    """A step through :meth:`Pipeline.reference`: ``out.results`` without the estimator's
+    columns, ``out.events`` not yet joined; what :meth:`Pipeline.estimate` completes."""
+
+    out: StepOutput
+    acc: np.ndarray  # (N, 3) calibrated m/s^2 of every channel
+    usable: np.ndarray  # (N, 3) present and status OK
+    votes: np.ndarray  # VOTE_FAIL and INVALID events of these samples
+    parts: list[np.ndarray]  # the step's event parts; the fusion's go in at index 1
+
+
 class Pipeline:
-    def __init__(self, config: Config, *, estimator: EstimatorLike | None = None) -> None:
+    def __init__(
+        self, config: Config, *, estimator: EstimatorLike | None = None, later: bool = False
+    ) -> None:
+        """``estimator``: a stand-in (default: the bench's, built now); ``later``: built on
+        first use instead (a replay builds it while its first steps are referenced)."""
         self.config = config
         self.assembler = Assembler(config.sample_rate_hz)
-        self.estimator: EstimatorLike = estimator if estimator is not None else Estimator(config)
+        self._estimator = estimator if estimator is not None or later else new_estimator(config)
         self.stats = Stats()
         self.seq = 0  # frames seen so far (arrival index of the next one)
         self.first_ticks: int | None = None
@@ -162,22 +194,56 @@ class Pipeline:
         self.last_status: np.void | None = None
         self.last_speed: np.void | None = None
 
+    @property
+    def estimator(self) -> EstimatorLike:
+        if self._estimator is None:
+            self._estimator = new_estimator(self.config)
+        return self._estimator
+
+    @estimator.setter
+    def estimator(self, estimator: EstimatorLike) -> None:
+        self._estimator = estimator
+
     # -- stream ----------------------------------------------------------------------------
     def process(self, batch: SourceBatch) -> StepOutput:
+        return self.estimate(self.reference(batch))
+
+    def finish(self) -> StepOutput:
+        return self.estimate(self.reference_finish())
+
+    def reference(self, batch: SourceBatch) -> Referenced:
+        """The first stage of a step: decode, assemble, the reference method."""
         frames = batch.frames
         dec = decode_batch(frames, self.config.base_id)
         seq0 = self.seq
         self.seq += len(frames)
         self.stats.count_frames(dec.can_id)
         samples, events = self.assembler.push(frames["t"], dec, seq0)
-        return self._fuse(samples, events, frames, dec, seq0, batch)
+        return self._reference(samples, events, frames, dec, seq0, batch)
 
-    def finish(self) -> StepOutput:
+    def reference_finish(self) -> Referenced:
+        """The first stage of the final flush (the samples the assembler still holds)."""
         samples, events = self.assembler.finish()
-        return self._fuse(samples, events, _NO_FRAMES, EMPTY_DECODED, self.seq, None)
+        return self._reference(samples, events, _NO_FRAMES, EMPTY_DECODED, self.seq, None)
+
+    def estimate(self, step: Referenced) -> StepOutput:
+        """The second stage of a step: the estimator's columns and events, in the order of
+        the first stage's steps."""
+        out = step.out
+        est_events = self._estimate(out.results, out.samples, step.acc, step.usable, out.speed)
+        step.parts[1] = concat_events([step.votes, est_events])
+        out.events = concat_events(step.parts)
+        self.stats.count_events(out.events)
+        self.stats.count_results(out.results)
+        return out
+
+    def compute(self, samples: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fusion of emitted samples: reference method + estimator; results and events."""
+        results, acc, ok, votes = self._fuse(samples)
+        return results, concat_events([votes, self._estimate(results, samples, acc, ok, speed)])
 
     # -- internals -------------------------------------------------------------------------
-    def _fuse(
+    def _reference(
         self,
         samples: np.ndarray,
         events: np.ndarray,
@@ -185,12 +251,12 @@ class Pipeline:
         dec: DecodedBatch,
         seq0: int,
         batch: SourceBatch | None,
-    ) -> StepOutput:
+    ) -> Referenced:
         t = frames["t"]
         status = status_records(t, dec, seq0)
         speed = speed_records(t, dec, seq0)
-        results, fusion_events = self.compute(samples, speed)
-        parts = [events, fusion_events]
+        results, acc, ok, votes = self._fuse(samples)
+        parts = [events, NO_EVENTS]  # the fusion's events: Pipeline.estimate
         if batch is not None and (batch.link_errors or batch.notices):
             parts.append(self._source_events(batch))
         if len(status):
@@ -200,27 +266,21 @@ class Pipeline:
         if len(speed):
             self.last_speed = speed[-1]
             self.stats.speed_frames += len(speed)
-        all_events = concat_events(parts)
-        self.stats.count_events(all_events)
-        self.stats.count_results(results)
         self.stats.count_channel_frames(t, dec)
-        return StepOutput(
-            frames, dec.outcome, seq0, samples, results, all_events, status, speed, batch
+        out = StepOutput(
+            frames, dec.outcome, seq0, samples, results, NO_EVENTS, status, speed, batch
         )
+        return Referenced(out, acc, ok, votes, parts)
 
-    def compute(self, samples: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Fusion of emitted samples: reference method + estimator."""
+    def _fuse(self, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The reference method's rows of emitted samples (the estimator's columns unwritten),
+        the calibrated accelerations, which are usable, and the vote events."""
         if len(samples) == 0:
-            if len(speed) == 0:  # nothing to fuse and nothing for the estimator to keep
-                return _NO_RESULTS, NO_EVENTS
-            _, est_events = self.estimator.push(
-                NO_SAMPLES, np.zeros((0, 3)), np.zeros((0, 3), bool), speed
-            )
-            return _NO_RESULTS, est_events
+            return _NO_RESULTS, _NO_ACC, _NO_USABLE, NO_EVENTS
         if self.first_ticks is None:
             self.first_ticks = int(samples["ticks"][0])
-        res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written below
-        _FROM_SAMPLE.copy(res, samples)
+        res = np.empty(len(samples), dtype=RESULT_DTYPE)  # every field is written here or
+        _FROM_SAMPLE.copy(res, samples)  # by the estimator's stage
         res["time_s"] = (samples["ticks"] - self.first_ticks) / 10000.0
         ok = usable(samples)
         acc = (samples["code"].astype(np.float64) - self._offset) * self._scale
@@ -232,10 +292,26 @@ class Pipeline:
         res["weights"] = ref.weights
         res["gradient"] = ref.gradient
         res["valid"] = ref.valid
+        votes = self._vote_events(samples["t"], samples["n"], ref.votes)
+        return res, acc, ok, votes
+
+    def _estimate(
+        self,
+        results: np.ndarray,
+        samples: np.ndarray,
+        acc: np.ndarray,
+        ok: np.ndarray,
+        speed: np.ndarray,
+    ) -> np.ndarray:
+        """The estimator's columns written into ``results``; its events."""
+        if len(samples) == 0:
+            if len(speed) == 0:  # nothing to fuse and nothing for the estimator to keep
+                return NO_EVENTS
+            _, est_events = self.estimator.push(NO_SAMPLES, _NO_ACC, _NO_USABLE, speed)
+            return est_events
         est, est_events = self.estimator.push(samples, acc, ok, speed)
-        _FROM_ESTIMATE.copy(res, est)
-        vote_events = self._vote_events(samples["t"], samples["n"], ref.votes)
-        return res, concat_events([vote_events, est_events])
+        _FROM_ESTIMATE.copy(results, est)
+        return est_events
 
     def _vote_events(self, t: np.ndarray, n: np.ndarray, votes: np.ndarray) -> np.ndarray:
         """A VOTE_FAIL event whenever the set of failed votes changes to a non-empty one

@@ -6,7 +6,8 @@ starts load it in about a second. Nothing else needs it, so nobody has to stare 
 terminal: a live screen runs a preview pipeline (the reference method, the estimator's
 columns pending) while a thread prepares the kernel, and then the full pipeline catches up
 on every frame held meanwhile (:class:`bench.live.runner.LiveRunner`); the headless
-commands say one line on stderr and wait (:func:`prepare`).
+commands say one line on stderr and wait (:func:`prepare`), a replay while its first
+stage decodes and fuses the log's first frames (:func:`bench.replay.run.replay`).
 
 The estimator is reached through two functions only, ``kernel_is_ready`` and ``warm_up``
 of :mod:`bench.fusion.estimator`, imported when called: the TUI's screen process imports
@@ -15,7 +16,6 @@ this module for :class:`WarmUpStatus` and must not import fusion.
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -77,24 +77,6 @@ def prepare(say: Callable[[str], None]) -> float | None:
     return took
 
 
-def load_in_background() -> threading.Thread:
-    """Load the estimator's kernels from numba's disk cache in a thread, while a headless
-    command checks its arguments and opens its files (none of which needs them); its
-    pipeline, built later, finds them loaded (numba's compiler lock has it wait for a load
-    under way). Kernels that need compiling are left to :func:`prepare`, which says so."""
-
-    def load() -> None:
-        with contextlib.suppress(Exception):  # building the pipeline raises it again, in turn
-            if kernel_is_ready():
-                from bench.fusion.estimator import warm_up
-
-                warm_up()
-
-    thread = threading.Thread(target=load, name="estimator-load", daemon=True)
-    thread.start()
-    return thread
-
-
 class KernelWarmUp:
     """Prepares the kernel in a thread of its own; :attr:`ready` once it is there."""
 
@@ -151,7 +133,7 @@ class PendingEstimator:
     as the pipeline calls it."""
 
     def __init__(self) -> None:
-        from bench.fusion.estimator import ESTIMATE_DTYPE
+        from bench.records.results import ESTIMATE_DTYPE
 
         self._row = np.zeros(1, dtype=ESTIMATE_DTYPE)
         for name in ESTIMATE_DTYPE.names or ():

@@ -35,6 +35,24 @@ RESULT_DTYPE = np.dtype(
     ]
 )
 
+ESTIMATE_DTYPE = np.dtype(
+    [
+        ("gradient_signed", "<f8"),
+        ("gradient_ls", "<f8"),
+        ("u", "<f8"),
+        ("w", "<f8"),
+        ("a_ref", "<f8"),
+        ("residual", "<f8"),
+        ("degraded", "?"),
+        ("excluded", "u1"),
+        ("gradient_sigma", "<f8"),
+        ("odometer_suspect", "?"),
+        ("coasting", "?"),
+    ]
+)
+"""The estimator's row (bench.fusion.estimator): the last fields of RESULT_DTYPE, kept here
+so the pipeline knows the layout without importing the estimator (and numba)."""
+
 SMOOTHED_DTYPE = np.dtype(
     [
         *RESULT_DTYPE.descr,

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from bench.config import Config
 from bench.errors import BenchError
-from bench.pipeline.steps import Pipeline, StepOutput
+from bench.pipeline.steps import Pipeline, Referenced, StepOutput, new_estimator
 from bench.records.results import RESULT_DTYPE
 from bench.replay.prefetch import ReadAhead
 from bench.sinks.base import Sink
@@ -19,6 +19,9 @@ from devices.tomlcheck import printable
 READ_AHEAD = 4
 """Batches read ahead of the pipeline (65 536 frames each, 1.5 MB): while the pipeline is
 built, the reading gets that far."""
+REFERENCED_AHEAD = 8
+"""Steps the first stage (decode, assembly, the reference method) runs ahead of the
+estimator's (about 9 MB each): what it gets done while the estimator's kernels load."""
 
 
 @dataclass
@@ -35,6 +38,13 @@ def run_steps(pipeline: Pipeline, batches: Iterable[SourceBatch]) -> Iterable[St
     yield pipeline.finish()
 
 
+def referenced(pipeline: Pipeline, batches: Iterable[SourceBatch]) -> Iterator[Referenced]:
+    """The first stage of every step (bench.pipeline.steps), ending with the final flush's."""
+    for batch in batches:
+        yield pipeline.reference(batch)
+    yield pipeline.reference_finish()
+
+
 def replay(
     source: FileSource,
     config: Config,
@@ -43,18 +53,28 @@ def replay(
     collect: bool = True,
     batch_frames: int = 65536,
     on_progress: Callable[[int], None] | None = None,
+    before_estimator: Callable[[], object] | None = None,
 ) -> ReplayOutcome:
     """Run a log through a fresh Pipeline, feeding each step to the sinks.
 
-    The source is read a few batches ahead in a thread of its own (bench.replay.prefetch),
-    which starts before the pipeline is built: the estimator's kernels load meanwhile."""
+    Three threads, each stage's work in order: the source is read a few batches ahead
+    (bench.replay.prefetch); a second thread runs the pipeline's first stage (decode,
+    assembly, the reference method) on them; this one builds the estimator (its kernels
+    load from numba's cache: about 0.3 s of a replay's start, under the GIL) and completes
+    each step, then feeds it to the sinks. ``before_estimator`` runs here first (a headless
+    command's word that a first start compiles)."""
     ahead = ReadAhead(source.batches(batch_frames), depth=READ_AHEAD)
     sinks = list(sinks)
     parts: list[np.ndarray] = []
     notices: list[str] = []
+    pipeline = Pipeline(config, later=True)
+    first = ReadAhead(referenced(pipeline, ahead), depth=REFERENCED_AHEAD)
     try:
-        pipeline = Pipeline(config)
-        for step in run_steps(pipeline, ahead):
+        if before_estimator is not None:
+            before_estimator()
+        pipeline.estimator = new_estimator(config)  # built now, while the first stage runs
+        for half in first:
+            step = pipeline.estimate(half)
             if step.batch is not None:
                 notices += [f"{n.kind}: {n.detail}" for n in step.batch.notices]
             for sink in sinks:
@@ -64,6 +84,7 @@ def replay(
             if on_progress is not None:
                 on_progress(source.position())
     finally:
+        first.close()
         ahead.close()
     results = np.concatenate(parts) if parts else np.zeros(0, dtype=RESULT_DTYPE)
     return ReplayOutcome(pipeline, results, notices)
