@@ -39,6 +39,9 @@ PLOT_BLOCKS = 3000
 CLOSE_TIMEOUT_S = 60.0
 """How long closing waits for the model to work off its queue."""
 
+MAX_MERGE = 4096
+"""Queued pushes the model thread takes as one at most."""
+
 _STOP = None
 
 
@@ -61,7 +64,7 @@ class LiveModel:
         self._rows: list[np.ndarray] = []  # rows not yet taken for the log
         self._plot: deque[tuple[float, float, float]] = deque(maxlen=PLOT_BLOCKS)
         self._latest: np.void | None = None  # the filter's newest block, as a row
-        self._pending: deque[np.void] = deque()  # filtered rows waiting for their lagged values
+        self._pending = NO_MODEL_ROWS  # filtered rows waiting for their lagged values
         self._recv = np.zeros(0)  # receive times of the samples of the block not complete
         self.blocks = 0
         self.ready = False  # the kernels are loaded
@@ -128,16 +131,25 @@ class LiveModel:
         try:
             self._warm_up()
             self.ready = True
-            while True:
-                item = self._queue.get()
-                if item is _STOP:
-                    self._emit(self._fwd.finish(), self._recv, final=True)
-                    return
-                b, acc, mask, frames, recv = item
-                with self._lock:
-                    self._queued -= len(b)
-                self._recv = np.concatenate([self._recv, recv])
-                self._emit(self._fwd.push(b, acc, mask, frames), self._recv)
+            end = False
+            while not end:
+                # whatever else waits goes into the same push: the stream's blocks do not
+                # depend on the cut, and a live push of a few samples costs mostly overhead
+                items = [self._queue.get()]
+                while items[-1] is not _STOP and len(items) < MAX_MERGE:
+                    try:
+                        items.append(self._queue.get_nowait())
+                    except queue.Empty:
+                        break
+                end = items[-1] is _STOP
+                pushes = [i for i in items if i is not _STOP]
+                if pushes:
+                    b, acc, mask, frames, recv = _merge(pushes)
+                    with self._lock:
+                        self._queued -= len(b)
+                    self._recv = np.concatenate([self._recv, recv])
+                    self._emit(self._fwd.push(b, acc, mask, frames), self._recv)
+            self._emit(self._fwd.finish(), self._recv, final=True)
         except Exception as exc:  # the model must not stop the run: said on its panel
             self.error = f"the model stopped: {exc!r}"
             with contextlib.suppress(Exception):
@@ -155,27 +167,25 @@ class LiveModel:
     def _emit(self, blocks: Blocks, recv: np.ndarray, final: bool = False) -> None:
         """Rows of the new blocks: filtered now, lagged once FixedLag gives them."""
         m = len(blocks)
-        done = m * self.block if not final else len(recv)
-        last = [min((j + 1) * self.block, len(recv)) - 1 for j in range(m)]
-        fresh = [self._filtered_row(blocks, j, recv[last[j]]) for j in range(m)]
-        self._recv = recv[done:]
+        last = np.minimum(np.arange(1, m + 1) * self.block, len(recv)) - 1
+        fresh = self._filtered_rows(blocks, recv[last])
+        self._recv = recv[len(recv) if final else m * self.block :]
         lagged = self._lag.push(blocks)
         if final:
             tail = self._lag.finish()
             lagged = Lagged(
                 *(np.concatenate([getattr(lagged, f), getattr(tail, f)]) for f in Lagged.__slots__)
             )
-        self._pending.extend(fresh)
-        rows = np.zeros(len(lagged), dtype=MODEL_DTYPE)
-        for i in range(len(lagged)):
-            rows[i] = self._pending.popleft()
+        self._pending = np.concatenate([self._pending, fresh])
+        k = len(lagged)
+        rows, self._pending = self._pending[:k].copy(), self._pending[k:]
         rows["gradient_lagged"] = lagged.gradient
         rows["gradient_lagged_sigma"] = lagged.gradient_sigma
         with self._lock:
             self.blocks += m
-            if fresh:
+            if m:
                 self._latest = fresh[-1]
-            if len(rows):
+            if k:
                 self._rows.append(rows)
                 self._plot.extend(
                     zip(
@@ -186,22 +196,45 @@ class LiveModel:
                     )
                 )
 
-    def _filtered_row(self, blocks: Blocks, j: int, recv_t: float) -> np.void:
-        x, p = blocks.x_filt[j], blocks.p_filt[j]
-        sig = np.sqrt(np.maximum(np.diagonal(p), 0.0))
-        grad, gsig = gradient_permil(
-            x[state.S : state.S + 1], p[state.S, state.S : state.S + 1], self.config.g
+    def _filtered_rows(self, blocks: Blocks, recv_t: np.ndarray) -> np.ndarray:
+        """The blocks' rows as the filter has them (the lagged gradient NaN until known)."""
+        x = blocks.x_filt
+        sig = np.sqrt(np.maximum(np.diagonal(blocks.p_filt, axis1=1, axis2=2), 0.0))
+        rows = np.zeros(len(blocks), dtype=MODEL_DTYPE)
+        rows["block"] = self.blocks + np.arange(len(blocks))
+        rows["t"] = recv_t
+        rows["board_t"] = blocks.t
+        rows["gradient"], rows["gradient_sigma"] = gradient_permil(
+            x[:, state.S], blocks.p_filt[:, state.S, state.S], self.config.g
         )
-        row = np.zeros(1, dtype=MODEL_DTYPE)[0]
-        row["block"] = self.blocks + j
-        row["t"] = recv_t
-        row["board_t"] = blocks.t[j]
-        row["gradient"], row["gradient_sigma"] = grad[0], gsig[0]
-        row["gradient_lagged"] = row["gradient_lagged_sigma"] = math.nan
-        row["lag_s"] = self.lag_s
-        row["wheel_error"], row["wheel_error_sigma"] = x[state.E], sig[state.E]
-        row["compliance"] = math.degrees(x[state.C])
-        row["compliance_sigma"] = math.degrees(sig[state.C])
-        row["bias"] = x[list(state.BIASES)]
-        row["bias_sigma"] = sig[list(state.BIASES)]
-        return row
+        rows["gradient_lagged"] = rows["gradient_lagged_sigma"] = math.nan
+        rows["lag_s"] = self.lag_s
+        rows["wheel_error"], rows["wheel_error_sigma"] = x[:, state.E], sig[:, state.E]
+        rows["compliance"] = np.degrees(x[:, state.C])
+        rows["compliance_sigma"] = np.degrees(sig[:, state.C])
+        rows["bias"] = x[:, list(state.BIASES)]
+        rows["bias_sigma"] = sig[:, list(state.BIASES)]
+        return rows
+
+
+def _merge(pushes: list[tuple[Any, ...]]) -> tuple[Any, ...]:
+    """Consecutive pushes as one: samples concatenated, each push's frames anchored into
+    the whole."""
+    if len(pushes) == 1:
+        return pushes[0]
+    cols: list[list[np.ndarray]] = [[] for _ in range(5)]
+    at = 0
+    for b, _, _, frames, _ in pushes:
+        if frames is not None and len(frames[0]):
+            cols[0].append(np.asarray(frames[0], dtype=np.int64) + at)
+            for c in range(1, 5):
+                cols[c].append(np.asarray(frames[c]))
+        at += len(b)
+    frames_all = tuple(np.concatenate(c) for c in cols) if cols[0] else None
+    return (
+        np.concatenate([p[0] for p in pushes]),
+        np.concatenate([np.asarray(p[1]).reshape(len(p[0]), 3) for p in pushes]),
+        np.concatenate([p[2] for p in pushes]),
+        frames_all,
+        np.concatenate([p[4] for p in pushes]),
+    )
