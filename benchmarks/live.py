@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from bench.sinks.base import Sink
 from benchmarks.common import Figure, board_frame_rate, board_scenario, live_cpu_text
 
 RATE_TARGET = 20_000.0
@@ -49,7 +50,7 @@ MAX_BEHIND_S = 1.0
 _ids = itertools.count(1)
 
 
-class LatencySink:
+class LatencySink(Sink):
     """Frame-to-result latency of every result, kept as a fixed log-spaced histogram (a Sink).
 
     Constant memory however long the run (0.1 % wide bins from 1 us to 1000 s), so a soak's
@@ -89,12 +90,6 @@ class LatencySink:
             self.n += 1
             if not self.max_ms >= lat:
                 self.max_ms = lat
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
     def percentile(self, q: float) -> float:
         """The q-th percentile (bin centre, 0.1 % resolution)."""

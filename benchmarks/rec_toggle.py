@@ -33,10 +33,11 @@ import numpy as np
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from bench.sinks.base import Sink
 from benchmarks.common import Figure, board_scenario
 
 
-class TimedLatency:
+class TimedLatency(Sink):
     """A sink after the Recorder: (wall time, frame-to-result latency) of every result that
     a frame made, so the latency can be cut into windows afterwards."""
 
@@ -54,12 +55,6 @@ class TimedLatency:
         with self._lock:
             self._wall.extend([now] * len(res))
             self._lat.extend(lat.tolist())
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
     def deliveries(self, start: float, end: float) -> tuple[int, float]:
         """Results delivered between wall times ``start`` and ``end``, and the longest time

@@ -21,7 +21,7 @@ from bench.live.session import Session
 from bench.pipeline.steps import Pipeline, StepOutput
 from bench.pipeline.warmup import KernelWarmUp, WarmUpStatus
 from bench.records.events import EventKind, concat_events
-from bench.sinks.base import RecordingStatus
+from bench.sinks.base import RecordingStatus, Sink
 from bench.tui.app import BenchApp
 from bench.tui.panels.recording import recording_table
 from devices.base import SourceBatch
@@ -42,7 +42,7 @@ def stream() -> np.ndarray:
     )
 
 
-class Recorder:
+class Recorder(Sink):
     """A sink keeping every step, and how many result rows it had when each mark came."""
 
     def __init__(self) -> None:
@@ -55,9 +55,6 @@ class Recorder:
 
     def mark(self, t: float, text: str) -> None:
         self.marks.append((text, sum(len(s.results) for s in self.steps)))
-
-    def close(self) -> None:
-        pass
 
     def results(self) -> np.ndarray:
         return np.concatenate([s.results for s in self.steps if len(s.results)])

@@ -29,6 +29,7 @@ from hypothesis import strategies as st
 from bench.config import Config
 from bench.errors import BenchError
 from bench.pipeline.steps import Pipeline, StepOutput
+from bench.sinks.base import Sink
 from devices.base import SourceBatch
 from protocol.crc import frame_crc8_batch
 from protocol.frames import FRAME_DTYPE, empty_frames
@@ -130,7 +131,7 @@ def recorded_mcap(tmp_path_factory: pytest.TempPathFactory) -> Recorded:
     return Recorded(path.read_bytes(), sim.frames.copy())
 
 
-class _Frames:
+class _Frames(Sink):
     """A sink keeping the frames each replay step was given."""
 
     def __init__(self) -> None:
@@ -139,12 +140,6 @@ class _Frames:
     def write(self, step: StepOutput) -> None:
         if step.batch is not None:
             self.parts.append(step.batch.frames)
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def _replayed(path: Path) -> tuple[np.ndarray, list[str]] | None:

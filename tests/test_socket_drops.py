@@ -18,9 +18,10 @@ from bench.mcaplog.reader import McapLog
 from bench.mcaplog.sink import McapSink
 from bench.pipeline.steps import Pipeline
 from bench.records.events import EventKind, describe
+from bench.sinks.base import Sink
 from bench.tui.panels.board import board_lines
 from devices import bus as bus_module
-from devices.base import SourceBatch, SourceNotice
+from devices.base import LiveSource, SourceBatch, SourceNotice
 from devices.bus import CanBusSource
 from tests.helpers import instant, pack
 
@@ -175,7 +176,7 @@ def test_stop_waits_for_the_sinks_to_close_even_past_the_acquisition_timeout() -
 
     from bench.live.runner import LiveRunner
 
-    class _Idle:
+    class _Idle(LiveSource):
         description = "idle"
 
         def read(self, timeout: float) -> SourceBatch:
@@ -185,13 +186,10 @@ def test_stop_waits_for_the_sinks_to_close_even_past_the_acquisition_timeout() -
         def close(self) -> None:
             pass
 
-    class _SlowSink:
+    class _SlowSink(Sink):
         closed = False
 
         def write(self, step: object) -> None:
-            pass
-
-        def mark(self, t: float, text: str) -> None:
             pass
 
         def close(self) -> None:
@@ -199,12 +197,12 @@ def test_stop_waits_for_the_sinks_to_close_even_past_the_acquisition_timeout() -
             self.closed = True
 
     sink = _SlowSink()
-    runner = LiveRunner(_Idle(), Config(), [sink])  # type: ignore[arg-type, list-item]
+    runner = LiveRunner(_Idle(), Config(), [sink])
     runner.start()
     runner.stop(timeout=0.1)
     assert sink.closed and runner.error is None
     late = _SlowSink()
-    runner = LiveRunner(_Idle(), Config(), [late])  # type: ignore[arg-type, list-item]
+    runner = LiveRunner(_Idle(), Config(), [late])
     runner.start()
     runner.stop(timeout=0.1, close_timeout=0.2)
     assert not late.closed and "may be unfinished" in str(runner.error)

@@ -43,6 +43,7 @@ from bench.pipeline.steps import Pipeline, StepOutput
 from bench.records.events import EVENT_DTYPE, concat_events
 from bench.records.results import RESULT_DTYPE
 from bench.replay.run import run_steps
+from bench.sinks.base import Sink
 from devices.paths import write_file
 
 SILENCE_S = 10.0
@@ -97,7 +98,7 @@ def has_live_source(args: argparse.Namespace | None) -> bool:
     return any(getattr(args, n, None) is not None for n in names)
 
 
-class Collector:
+class Collector(Sink):
     """A sink that keeps every result and event of the run (thread-safe: a LiveRunner
     writes from its processing thread while the step engine reads the run time)."""
 
@@ -119,12 +120,6 @@ class Collector:
                 self.updated = time.monotonic()
             if len(step.events):
                 self._events.append(step.events)
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
     def results(self) -> np.ndarray:
         with self._lock:

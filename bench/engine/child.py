@@ -35,12 +35,13 @@ from bench.live.view import HISTORY
 from bench.pipeline.steps import StepOutput
 from bench.records.arrays import concat_records
 from bench.records.results import RESULT_DTYPE
+from bench.sinks.base import Sink
 
 SLOW_OPS = frozenset({"rec_finish", "plan"})
 OUTPUT_TAIL = 8000
 
 
-class RowTap:
+class RowTap(Sink):
     """A sink keeping the results delivered since the last :meth:`take` (at most ``limit``
     rows: the screen's history holds no more), so a snapshot sends only what is new.
 
@@ -85,12 +86,6 @@ class RowTap:
             return np.zeros(0, dtype=RESULT_DTYPE), restart
         rows = concat_records(parts)  # np.concatenate: ~50 us of GIL per part
         return rows[-self._limit :], restart
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def portable(exc: BaseException) -> BaseException:

@@ -17,13 +17,14 @@ import pyarrow as pa
 
 from bench.pipeline.stats import Stats
 from bench.records.events import EventKind
+from bench.sinks.base import Sink
 
 WORST_EVENTS = 5
 """Event kinds listed per log, most frequent first (benign kinds left out)."""
 _BENIGN = {EventKind.MARK, EventKind.READMITTED, EventKind.BOARD_STATE, EventKind.RECONNECT}
 
 
-class SummarySink:
+class SummarySink(Sink):
     """Running figures of a replay that the pipeline's Stats do not keep."""
 
     def __init__(self) -> None:
@@ -63,12 +64,6 @@ class SummarySink:
         self.rows += len(res)
         self.last_time_s = float(t[-1])
         self._prev = (float(t[-1]), int(ex[-1]), bool(valid[-1]))
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def worst_events(events: Counter[int]) -> list[str]:

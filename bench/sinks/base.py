@@ -12,15 +12,18 @@ if TYPE_CHECKING:  # a type only: the screen process reads RecordingStatus, not 
 
 class Sink(Protocol):
     """Receives every StepOutput in order. write() must not block the caller for long:
-    a sink that does I/O keeps its own bounded queue and thread and counts what it drops."""
+    a sink that does I/O keeps its own bounded queue and thread and counts what it drops.
+    A class that subclasses Sink has mark() and close() that do nothing unless it says
+    otherwise."""
 
     def write(self, step: StepOutput) -> None: ...
 
     def mark(self, t: float, text: str) -> None:
         """An operator mark or other free-text event to record."""
-        ...
+        return None
 
-    def close(self) -> None: ...
+    def close(self) -> None:
+        return None
 
 
 @dataclass(frozen=True, slots=True)
