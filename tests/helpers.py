@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -72,6 +73,37 @@ def bench(*args: str, timeout: float = 120.0, **kw: Any) -> subprocess.Completed
     kw.setdefault("cwd", ROOT)
     cmd = [sys.executable, "-m", "bench", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False, **kw)
+
+
+def event_texts(path: Path) -> list[str]:
+    """The text of every /bench/events message of an MCAP file, read with the mcap
+    package's own reader (not the bench's)."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        return [
+            json.loads(m.data)["message"]
+            for _s, _c, m in make_reader(f).iter_messages(topics=["/bench/events"])
+        ]
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return repr(v)
+
+
+def scenario_toml(d: dict[str, Any]) -> str:
+    """The scenario dict as TOML (scalars, then arrays of tables)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, list)]
+    for key, items in d.items():
+        if isinstance(items, list):
+            for item in items:
+                lines.append(f"[[{key}]]")
+                lines += [f"{k} = {_toml_value(v)}" for k, v in item.items()]
+    return "\n".join(lines) + "\n"
 
 
 def until(cond: Callable[[], bool], what: str = "the condition", timeout: float = 60.0) -> None:

@@ -25,6 +25,7 @@ from devices.emulator.player import write_truth_csv
 from devices.emulator.stream import RunCounts, simulate_chunks
 from devices.errors import BenchError
 from devices.writers import write_candump
+from tests.helpers import scenario_toml
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -89,7 +90,7 @@ def test_bench_emulate_files_are_the_whole_runs(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     sc_path = tmp_path / "every_fault.toml"
-    sc_path.write_text(_toml(every_fault(seconds=25.0)))  # three 10 s chunks
+    sc_path.write_text(scenario_toml(every_fault(seconds=25.0)))  # three 10 s chunks
     sc = load_scenario(sc_path)
     sim = simulate(sc)
     summary = sim.summary()  # of a .log run: before the UART stream is made for the .bin
@@ -113,17 +114,6 @@ def test_bench_emulate_files_are_the_whole_runs(
     with McapLog(tmp_path / "s.mcap") as log:
         frames, _, _ = log.read_frames()
         assert frames.tobytes() == sim.frames.tobytes()
-
-
-def _toml(d: dict[str, Any]) -> str:
-    def value(v: Any) -> str:
-        return f'"{v}"' if isinstance(v, str) else repr(v)
-
-    lines = [f"{k} = {value(v)}" for k, v in d.items() if not isinstance(v, list)]
-    for f in d["faults"]:
-        lines.append("[[faults]]")
-        lines += [f"{k} = {value(v)}" for k, v in f.items()]
-    return "\n".join(lines) + "\n"
 
 
 def _peak_rss_mb(tmp: Path, seconds: int) -> float:

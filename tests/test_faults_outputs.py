@@ -22,7 +22,7 @@ import pyarrow as pa
 import pytest
 
 from bench.cli import main
-from tests.helpers import bench
+from tests.helpers import bench, event_texts
 
 SCENARIO = """
 description = "output test: 200 Hz, 2.5 s, level"
@@ -72,16 +72,6 @@ def _log_info(path: Path, capsys) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
-def _events(path: Path) -> list[str]:
-    from mcap.reader import make_reader
-
-    with path.open("rb") as f:
-        return [
-            json.loads(m.data)["message"]
-            for _s, _c, m in make_reader(f).iter_messages(topics=["/bench/events"])
-        ]
-
-
 def test_live_csv_on_a_full_disk_is_isolated_and_the_mcap_goes_on(
     tmp_path, scenario, monkeypatch, capsys
 ):
@@ -105,7 +95,7 @@ def test_live_csv_on_a_full_disk_is_isolated_and_the_mcap_goes_on(
     sent = _frames_sent(scenario)
     info = _log_info(log, capsys)
     assert info["frames"] == sent, info["frames"]
-    assert any(e.startswith("OUTPUT_ERROR No space left on device") for e in _events(log))
+    assert any(e.startswith("OUTPUT_ERROR No space left on device") for e in event_texts(log))
     # the failed CSV is removed, not left cut short; the command the error gives makes it
     assert not out.exists() and not list(tmp_path.glob(".live*"))
     replayed = tmp_path / "replay.csv"

@@ -26,6 +26,7 @@ from mcap.writer import CompressionType, Writer
 from bench.cli import main
 from bench.mcaplog import schemas as S
 from bench.mcaplog.reader import McapLog
+from tests.helpers import event_texts
 from tests.test_hostile_paths import ROOT, guarded, one_error
 from tests.test_mcap_hostile import frames_replayed, raw_frame
 
@@ -336,16 +337,6 @@ def test_a_device_log_that_changes_while_replayed_is_an_error(tmp_path, frames, 
 LIVE = 'description = "live csv"\nduration_s = 2.5\nseed = 4\nsample_rate_hz = 200\n'
 
 
-def _events(path: Path) -> list[str]:
-    from mcap.reader import make_reader
-
-    with path.open("rb") as f:
-        return [
-            json.loads(m.data)["message"]
-            for _s, _c, m in make_reader(f).iter_messages(topics=["/bench/events"])
-        ]
-
-
 @pytest.mark.parametrize("how", ["folder", "deleted", "symlink"])
 def test_a_live_csv_that_disappears_is_a_failure(tmp_path, capsys, how):
     """Deleted and replaced by a folder or a symlink mid-run: exit 0, every row gone."""
@@ -378,6 +369,6 @@ def test_a_live_csv_that_disappears_is_a_failure(tmp_path, capsys, how):
     assert f"bench: error: {out}: cannot write the CSV: " in err, err
     assert "during the run" in err and "Traceback" not in err, err
     assert not out.is_file()
-    events = _events(log)
+    events = event_texts(log)
     assert any(e.startswith("OUTPUT_ERROR") for e in events), events
     assert f"bench: log written: {log}" in err, err  # the MCAP went on

@@ -19,28 +19,10 @@ from typing import Any
 from bench.cli import main
 from benchmarks.common import board_scenario
 from benchmarks.soak import failing_csv_opener, fault_schedule
+from tests.helpers import scenario_toml
 
 SECONDS = 8.0
 FAIL_AFTER_BYTES = 300_000  # ~2 s of 1 kHz result rows
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    return repr(v)
-
-
-def scenario_toml(d: dict[str, Any]) -> str:
-    """The scenario dict as TOML (scalars, then arrays of tables)."""
-    lines = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, list)]
-    for key, items in d.items():
-        if isinstance(items, list):
-            for item in items:
-                lines.append(f"[[{key}]]")
-                lines += [f"{k} = {_toml_value(v)}" for k, v in item.items()]
-    return "\n".join(lines) + "\n"
 
 
 def test_soak_board_with_the_csv_failing_mid_run(
