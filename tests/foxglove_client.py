@@ -160,6 +160,7 @@ class StalledClient:
         import os
         import socket
 
+        self.port = port
         self.sock = socket.socket()
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         self.sock.settimeout(30.0)

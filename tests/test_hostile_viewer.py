@@ -16,12 +16,13 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from bench.mcaplog.info import log_info
-from tests.foxglove_client import StalledClient
+from tests.foxglove_client import SUBPROTOCOLS, StalledClient
 from tests.test_hostile_records import bench
 
 GUARD_S = 180.0
@@ -63,7 +64,12 @@ def _wait_for_bytes(path: Path, proc: subprocess.Popen[str], size: int) -> None:
         time.sleep(0.05)
 
 
-def _start(tmp_path: Path, duration: str) -> tuple[subprocess.Popen[str], Lines, Lines, Path]:
+@contextlib.contextmanager
+def _stalled_run(
+    tmp_path: Path, duration: str, subprotocol: str = SUBPROTOCOLS[0]
+) -> Iterator[tuple[subprocess.Popen[str], Lines, Path, StalledClient]]:
+    """``bench run --foxglove`` with a viewer connected that will read nothing; the run is
+    killed and the viewer closed on the way out, whatever happened."""
     sc = tmp_path / "s.toml"
     sc.write_text("duration_s = 600.0\nseed = 2\n")
     log = tmp_path / "run.mcap"
@@ -73,24 +79,26 @@ def _start(tmp_path: Path, duration: str) -> tuple[subprocess.Popen[str], Lines,
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
     )  # fmt: skip
     assert proc.stdout is not None and proc.stderr is not None
-    return proc, Lines(proc.stdout), Lines(proc.stderr), log
-
-
-@pytest.mark.parametrize("subprotocol", ["foxglove.websocket.v1", "foxglove.sdk.v1"])
-def test_a_viewer_that_never_reads_does_not_hold_the_run_past_its_duration(tmp_path, subprotocol):
-    proc, _out, err, log = _start(tmp_path, "4")
+    Lines(proc.stdout)  # drained, never read
+    err = Lines(proc.stderr)
     viewer = None
     try:
         port = int(err.wait(r"Foxglove live stream on ws://127\.0\.0\.1:(\d+)", proc)[1])
         viewer = StalledClient(port, subprotocol)
-        assert viewer.status == "HTTP/1.1 101 Switching Protocols"
-        viewer.subscribe("/can/frames")  # and from now on reads nothing
-        proc.wait(GUARD_S)  # without the fix: minutes, while the viewer stays connected
+        yield proc, err, log, viewer
     finally:
         if proc.poll() is None:
             proc.kill()
         if viewer is not None:
             viewer.close()
+
+
+@pytest.mark.parametrize("subprotocol", SUBPROTOCOLS)
+def test_a_viewer_that_never_reads_does_not_hold_the_run_past_its_duration(tmp_path, subprotocol):
+    with _stalled_run(tmp_path, "4", subprotocol) as (proc, err, log, viewer):
+        assert viewer.status == "HTTP/1.1 101 Switching Protocols"
+        viewer.subscribe("/can/frames")  # and from now on reads nothing
+        proc.wait(GUARD_S)  # without the fix: minutes, while the viewer stays connected
     assert proc.returncode == 0, err.text()
     info = log_info(log)
     assert info["complete"], info
@@ -99,19 +107,11 @@ def test_a_viewer_that_never_reads_does_not_hold_the_run_past_its_duration(tmp_p
 
 
 def test_sigterm_ends_a_run_whose_viewer_never_reads(tmp_path):
-    proc, _out, err, log = _start(tmp_path, "600")
-    viewer = None
-    try:
-        port = int(err.wait(r"Foxglove live stream on ws://127\.0\.0\.1:(\d+)", proc)[1])
-        viewer = StalledClient(port).subscribe("/can/frames")
+    with _stalled_run(tmp_path, "600") as (proc, err, log, viewer):
+        viewer.subscribe("/can/frames")
         _wait_for_bytes(log, proc, 100_000)  # the run goes on with the viewer stalled
         proc.send_signal(signal.SIGTERM)
         proc.wait(GUARD_S)  # without the fix SIGTERM did not end it
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        if viewer is not None:
-            viewer.close()
     assert proc.returncode == 0, err.text()
     info = log_info(log)
     assert info["complete"] and info["frames"] > 0, info
@@ -120,27 +120,19 @@ def test_sigterm_ends_a_run_whose_viewer_never_reads(tmp_path):
 def test_a_run_says_what_a_stalled_viewer_cost(tmp_path):
     """The stalled viewer is let go (reset) while the run goes on, and the run's end says
     so in one warning; the log is whole."""
-    proc, _out, err, log = _start(tmp_path, "600")
-    viewer = None
-    try:
-        port = int(err.wait(r"Foxglove live stream on ws://127\.0\.0\.1:(\d+)", proc)[1])
-        viewer = StalledClient(port).subscribe("/can/frames")
+    with _stalled_run(tmp_path, "600") as (proc, err, log, viewer):
+        viewer.subscribe("/can/frames")
         deadline = time.monotonic() + GUARD_S  # a hang guard: the cut comes after ~5 s
         while not viewer.was_let_go():
             assert proc.poll() is None and time.monotonic() < deadline, err.text()
             time.sleep(0.1)
         proc.send_signal(signal.SIGTERM)
         proc.wait(GUARD_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        if viewer is not None:
-            viewer.close()
     text = err.text()
     assert proc.returncode == 0, text
     warned = [ln for ln in text.splitlines() if "viewer disconnected" in ln]
     assert len(warned) == 1, text
-    assert f"Foxglove live stream on ws://127.0.0.1:{port}: " in warned[0]
+    assert f"Foxglove live stream on ws://127.0.0.1:{viewer.port}: " in warned[0]
     assert "1 viewer disconnected (did not take what was sent within 5 s)" in warned[0]
     assert log_info(log)["complete"]
 
