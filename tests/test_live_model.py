@@ -11,6 +11,7 @@ written by hand into the view for the panel's text.
 from __future__ import annotations
 
 import math
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -133,3 +134,29 @@ def test_a_full_queue_drops_the_push_counted_and_never_waits() -> None:
     assert model.blocks == 1  # the four samples kept: one block, smoothed at the end
     rows = model.take_rows()
     assert len(rows) == 1 and math.isfinite(rows["gradient_lagged"][0])
+
+
+def test_a_stalled_model_never_holds_up_the_pushes_it_drops() -> None:
+    config = replay_config(None, None)
+    model = LiveModel(config, 0.0, max_samples=100)
+    go = threading.Event()
+    stream_push = model._fwd.push
+
+    def stalled(*args, **kwargs):  # type: ignore[no-untyped-def]
+        go.wait()
+        return stream_push(*args, **kwargs)
+
+    model._fwd.push = stalled  # type: ignore[method-assign]
+    n = 40
+    for k in range(10):  # 400 samples while the model is stuck: 100 fit, the rest dropped
+        b = (np.arange(n) + k * n) / config.sample_rate_hz
+        model.add(b, np.zeros((n, 3)), np.full(n, 7), None)
+    view = model.view()
+    # the thread may take the first one or two pushes off the queue before it stalls (it
+    # takes whatever waits as one): 2 to 4 pushes kept
+    assert 6 <= view.dropped_pushes <= 8 and view.dropped_samples == n * view.dropped_pushes
+    go.set()
+    model.close()
+    kept = 10 - view.dropped_pushes
+    assert model.error is None and model._fwd.samples == kept * n
+    assert len(model.take_rows()) == model.blocks == -(-kept * n // model.block)
