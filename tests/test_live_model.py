@@ -160,3 +160,36 @@ def test_a_stalled_model_never_holds_up_the_pushes_it_drops() -> None:
     kept = 10 - view.dropped_pushes
     assert model.error is None and model._fwd.samples == kept * n
     assert len(model.take_rows()) == model.blocks == -(-kept * n // model.block)
+
+
+def test_what_the_model_drops_is_told_in_the_log_and_the_status_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A model thread that falls behind (each of its steps held 0.3 s) with room for 20
+    samples: the pushes it cannot hold are dropped, and every dropped sample is in the
+    log's MODEL_DROPPED events and the run's closing status line (never silently)."""
+    import re
+    import time
+
+    from bench.fusion.model.stream import ForwardStream
+    from bench.mcaplog.recorded import read_events
+    from bench.records.events import EventKind
+
+    push = ForwardStream.push
+
+    def slow(self, *args, **kwargs):  # type: ignore[no-untyped-def]
+        time.sleep(0.3)
+        return push(self, *args, **kwargs)
+
+    monkeypatch.setattr("bench.live.model.QUEUE_SAMPLES", 20)
+    monkeypatch.setattr(ForwardStream, "push", slow)
+    (tmp_path / "s.toml").write_text(SCENARIO.replace("duration_s = 6.0", "duration_s = 1.5"))
+    log = tmp_path / "run.mcap"
+    args = ["run", "--emulate", str(tmp_path / "s.toml"), "--mcap", str(log), "--lag", "0.2"]
+    assert main(args) == 0
+    shown = re.findall(r"mdrop (\d+)", capsys.readouterr().err)
+    assert shown, "the closing status line names the model's drops"
+    told = [e for e in read_events(log) if e["kind"] == EventKind.MODEL_DROPPED]
+    assert told and all(e["level"] == 3 for e in told)  # WARNING
+    assert sum(int(e["value"]) for e in told) == int(shown[-1]) > 0
+    assert "samples dropped by the live model's full queue" in told[0]["message"]

@@ -65,6 +65,8 @@ def status_line(s: Snapshot, elapsed: float) -> str:
     valid = 100.0 * st.valid / st.samples if st.samples else 0.0
     gaps = sum(c.gaps for c in st.channels)
     kdrop = f" kdrop {st.socket_drops}" if st.socket_drops else ""
+    if s.model is not None and s.model.dropped_samples:  # the live model's queue (--lag)
+        kdrop += f" mdrop {s.model.dropped_samples}"
     rec = ""
     if s.recording is not None:
         rec = f" log {s.recording.frames_text()}"

@@ -53,7 +53,7 @@ _STOP = None
 class LiveModel:
     """See the module docstring; ``lag_s`` >= 0 (0: the filter's estimates alone)."""
 
-    def __init__(self, config: Config, lag_s: float, max_samples: int = QUEUE_SAMPLES) -> None:
+    def __init__(self, config: Config, lag_s: float, max_samples: int | None = None) -> None:
         self.config = config
         self.lag_s = max(0.0, float(lag_s))
         self._fwd = ForwardStream(config)
@@ -61,10 +61,11 @@ class LiveModel:
         block_s = self.block / config.sample_rate_hz
         self._lag = FixedLag(round(self.lag_s / block_s), config.g)
         self._queue: queue.Queue[tuple[Any, ...] | None] = queue.Queue()
-        self._max = max_samples
+        self._max = QUEUE_SAMPLES if max_samples is None else max_samples
         self._queued = 0  # samples on the queue
         self.dropped_pushes = 0
         self.dropped_samples = 0
+        self._dropped_told = 0  # of dropped_samples, those take_dropped has told
         self._lock = threading.Lock()
         self._rows: list[np.ndarray] = []  # rows not yet taken for the log
         self._plot: deque[tuple[float, float, float]] = deque(maxlen=PLOT_BLOCKS)
@@ -106,6 +107,13 @@ class LiveModel:
         if not rows:
             return NO_MODEL_ROWS
         return rows[0] if len(rows) == 1 else np.concatenate(rows)
+
+    def take_dropped(self) -> int:
+        """Samples dropped since the last call (for a MODEL_DROPPED event in the log)."""
+        with self._lock:
+            new = self.dropped_samples - self._dropped_told
+            self._dropped_told = self.dropped_samples
+        return new
 
     def view(self) -> ModelView:
         with self._lock:

@@ -375,6 +375,10 @@ class LiveRunner:
         now = time.time()
         if self.model is not None:  # the rows the model made meanwhile go with this step
             step.model = self.model.take_rows()
+            lost = self.model.take_dropped()
+            if lost:  # counted on the model panel; told in the log too
+                lost_event = make_events(EventKind.MODEL_DROPPED, now, 0, -1, lost)
+                step.events = np.concatenate([step.events, lost_event])
         with self._lock:
             sinks = list(self._sinks)
         if self._carry_events:  # told in the step after the failure: the MCAP logs it too

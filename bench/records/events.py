@@ -41,6 +41,8 @@ class EventKind(IntEnum):
     SOCKET_OVERFLOW = 26  # value = frames the kernel dropped at a full socket receive buffer
     WRAP_GUESS = 27  # channel, n: a long gap's timestamp wraps taken from the receive clock alone,
     # the counter could not confirm them; value = wraps bridged
+    MODEL_DROPPED = 28  # value = samples the live model's full queue dropped (--lag): its
+    # /bench/model rows from then on are no longer what a replay of the log gives
 
 
 EVENT_DTYPE = np.dtype(
@@ -62,6 +64,7 @@ SEVERITY = {
     EventKind.TIME_OUTLIER: "warning",
     EventKind.CLOCK_STEP: "info",
     EventKind.WRAP_GUESS: "info",
+    EventKind.MODEL_DROPPED: "warning",
 }
 
 
@@ -176,6 +179,8 @@ def describe(ev: np.void | np.ndarray) -> str:
         parts.append(f"{value} frames dropped by the kernel (socket receive buffer full)")
     elif kind in (EventKind.OUTLIER, EventKind.TIME_OUTLIER, EventKind.CLOCK_STEP):
         parts.append(f"{value / 1000:+.3f} s")
+    elif kind is EventKind.MODEL_DROPPED:
+        parts.append(f"{value} samples dropped by the live model's full queue")
     elif kind is EventKind.WRAP_GUESS:
         parts.append(f"{value} timestamp wraps assumed across a gap (receive clock)")
     elif kind is EventKind.OUTPUT_ERROR:
