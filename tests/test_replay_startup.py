@@ -53,3 +53,44 @@ def test_the_pipeline_and_the_replay_import_without_numba() -> None:
     code = "import sys, bench.replay.run, bench.pipeline.steps; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False"]
+
+
+def _replay_in_a_fresh_interpreter(log: str, *args: str) -> tuple[list[str], str]:
+    """``bench replay LOG ARGS`` run by bench.cli.main in a fresh interpreter: the rich
+    modules it imported, and its stderr."""
+    code = textwrap.dedent(
+        f"""
+        import sys
+        from bench.cli import main
+        code = main(["replay", {log!r}, *{list(args)!r}])
+        print(code, sorted(m for m in sys.modules if m == "rich" or m.startswith("rich.")))
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    exit_code, modules = done.stdout.split(" ", 1)
+    assert exit_code == "0", done.stderr
+    return eval(modules), done.stderr  # a printed list of str
+
+
+def test_a_quiet_replay_never_imports_rich(tmp_path) -> None:
+    """``bench replay -q`` shows nothing (no progress bar, no summary table), so it does
+    not pay rich's import (about 45 ms of its start, issue 29); without ``-q`` the summary
+    is rich's table."""
+    log = tmp_path / "board.log"
+    log.write_text("(0.000000) can0 123#0011\n(0.001000) can0 123#2233\n")
+    modules, err = _replay_in_a_fresh_interpreter(str(log), "-q")
+    assert modules == [] and err == ""
+    modules, err = _replay_in_a_fresh_interpreter(str(log))
+    assert "rich.table" in modules and "unknown IDs" in err
+
+
+def test_a_quiet_replay_still_prints_its_warnings(tmp_path) -> None:
+    """A warning is shown under ``-q`` too (rich imported for it, its markup escaped)."""
+    log = tmp_path / "board.log"
+    log.write_text("(0.000000) can0 123#0011\nnot [bold]a frame\n(0.002000) can0 123#2233\n")
+    modules, err = _replay_in_a_fresh_interpreter(str(log), "-q")
+    assert "rich.console" in modules
+    (line,) = err.splitlines()
+    assert line.startswith("warning: parse_error: line 2: not a candump line")
+    assert line.endswith(": 'not [bold]a frame'")  # as written: no markup taken from a log

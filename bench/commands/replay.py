@@ -5,27 +5,34 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
-
-from rich.console import Console
-from rich.markup import escape
-from rich.progress import (
-    BarColumn,
-    DownloadColumn,
-    Progress,
-    TimeRemainingColumn,
-    TransferSpeedColumn,
-)
+from typing import TYPE_CHECKING, Any
 
 from bench.config import Config
 from bench.config_choice import replay_config, replay_hint
 from bench.errors import BenchError
 from bench.sinks.paths import check_output_file
-from bench.sinks.summary import print_summary
 from devices.paths import check_clashes
+
+if TYPE_CHECKING:
+    from rich.console import Console
 
 MAX_NOTICES = 20
 """Warnings printed one by one; the rest are counted (a log of noise must not flood the screen)."""
+
+
+class _LazyConsole:
+    """The run's rich console on stderr, made (and rich imported) when something is shown:
+    a quiet replay without warnings never imports rich (about 45 ms of its start)."""
+
+    def __init__(self) -> None:
+        self._console: Console | None = None
+
+    def __call__(self) -> Console:
+        if self._console is None:
+            from rich.console import Console
+
+            self._console = Console(stderr=True)
+        return self._console
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -85,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
 
-    console = Console(stderr=True)
+    _stderr = _LazyConsole()
     check_clashes(
         [("input log", args.input), ("--config", args.config), ("--plan", args.plan)],
         [("--csv", args.csv), ("--parquet", args.parquet), ("--mcap", args.mcap)],
@@ -145,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         prepare(lambda m: print(f"bench: {m}", file=sys.stderr))  # a first start says so
 
     total = source.size_bytes()
-    show = not args.quiet and console.is_terminal and total > 2_000_000
+    show = not args.quiet and total > 2_000_000 and _stderr().is_terminal
     collected = None
     if args.compare:  # this replay is the comparison's "after" side: keep its events too
         from bench.acceptance.runner import Collector
@@ -161,6 +168,14 @@ def run(args: argparse.Namespace) -> int:
         feed = [joined]
     try:
         if show:
+            from rich.progress import (
+                BarColumn,
+                DownloadColumn,
+                Progress,
+                TimeRemainingColumn,
+                TransferSpeedColumn,
+            )
+
             columns = (
                 *Progress.get_default_columns()[:1],
                 BarColumn(),
@@ -168,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
                 TransferSpeedColumn(),
                 TimeRemainingColumn(),
             )
-            with Progress(*columns, console=console, transient=True) as progress:
+            with Progress(*columns, console=_stderr(), transient=True) as progress:
                 task = progress.add_task(f"replay {args.input}", total=total)
                 outcome = replay(
                     source,
@@ -207,14 +222,20 @@ def run(args: argparse.Namespace) -> int:
         if hint:
             print(f"bench: {hint}", file=sys.stderr)
     shown = outcome.notices[:MAX_NOTICES]
+    if shown:
+        from rich.markup import escape
     for notice in shown:
-        console.print(f"[yellow]warning:[/] {escape(notice)}", soft_wrap=True)  # one line each
+        _stderr().print(f"[yellow]warning:[/] {escape(notice)}", soft_wrap=True)  # one line each
     if len(outcome.notices) > len(shown):
         rest = len(outcome.notices) - len(shown)
-        console.print(f"[yellow]warning:[/] ... and {rest} more (see the summary counts)")
+        _stderr().print(f"[yellow]warning:[/] ... and {rest} more (see the summary counts)")
     if not args.quiet:
-        print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=console)
+        from bench.sinks.summary import print_summary
+
+        print_summary(outcome.pipeline.stats, title=f"replay of {args.input}", console=_stderr())
     if collected is not None:
+        from rich.console import Console
+
         from bench.acceptance.whatif import Side
 
         label = "after (--config)" if args.config else "after (recomputed)"

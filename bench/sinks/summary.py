@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
-from rich.console import Console
-from rich.table import Table
+from typing import TYPE_CHECKING
 
 from bench.pipeline.stats import Stats
 
+if TYPE_CHECKING:  # rich is imported when a table is made: a quiet command never needs it
+    from rich.console import Console
+    from rich.table import Table
+
 
 def summary_table(stats: Stats, title: str = "summary") -> Table:
+    from rich.table import Table
+
     table = Table(title=title, show_header=False, box=None, pad_edge=False)
     table.add_column(style="bold")
     table.add_column(justify="right")
@@ -46,4 +51,8 @@ def summary_table(stats: Stats, title: str = "summary") -> Table:
 
 
 def print_summary(stats: Stats, title: str = "summary", console: Console | None = None) -> None:
-    (console or Console(stderr=True)).print(summary_table(stats, title))
+    if console is None:
+        from rich.console import Console
+
+        console = Console(stderr=True)
+    console.print(summary_table(stats, title))
