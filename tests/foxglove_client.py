@@ -2,9 +2,9 @@
 
 Written from the protocol spec (foxglove/ws-protocol docs/spec.md), not from the server's
 code: connect offering the subprotocols, read serverInfo and advertise (JSON text), send
-subscribe for every advertised channel, then count Message Data frames (binary: opcode 0x01,
-uint32 subscription id, uint64 log time, payload; little-endian) per channel. Only ever
-connects to 127.0.0.1.
+subscribe for every advertised channel (and for each one advertised later), then count
+Message Data frames (binary: opcode 0x01, uint32 subscription id, uint64 log time, payload;
+little-endian) per channel. Only ever connects to 127.0.0.1.
 """
 
 from __future__ import annotations
@@ -135,6 +135,14 @@ class Client:
                     r.messages[topic].append((log_time, bytes(msg[13:])))
                 else:
                     self._text(msg)
+                    # a channel advertised later (the live model's, with its first row): a
+                    # viewer showing it subscribes then, as Foxglove's panels do
+                    late = sorted(set(r.channels) - set(subs.values()))
+                    if late:
+                        first = len(subs)
+                        subs.update({first + k: cid for k, cid in enumerate(late)})
+                        new = [{"id": first + k, "channelId": c} for k, c in enumerate(late)]
+                        await ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
             with contextlib.suppress(Exception):
                 await ws.close()
 

@@ -87,7 +87,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> None:
-    """`bench run --emulate ... --foxglove 0`: the stream of a real run. A client connects
+    """`bench run --emulate ... --foxglove 0 --lag 0.5`: the stream of a real run, the live
+    model's /bench/model topic included. A client connects
     when the command prints the address, so it misses the first moments; what it receives
     must be exactly the end of each topic in the MCAP file the same run wrote."""
     import re
@@ -97,7 +98,7 @@ def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> 
 
     path = tmp_path / "run.mcap"
     cmd = [sys.executable, "-m", "bench", "run", "--emulate", "level_run", "--duration", "5"]
-    cmd += ["--mcap", str(path), "--foxglove", "0", "--quiet"]
+    cmd += ["--mcap", str(path), "--foxglove", "0", "--quiet", "--lag", "0.5"]  # + the model
     proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None
     port = None
@@ -122,9 +123,11 @@ def test_bench_run_foxglove_serves_the_topics_of_its_own_log(tmp_path: Path) -> 
     channels, messages = mcap_contents(path)
     advertised = {c["topic"]: (c["encoding"], c["schemaName"]) for c in got.channels.values()}
     assert advertised == channels
+    assert "/bench/model" in channels  # the live model's rows (--lag), added with the first
     for topic in ("/can/frames", "/bench/results", "/bench/samples", "/bench/status"):
         received = got.messages.get(topic, [])
         assert len(received) > 100 or (topic == "/bench/status" and received), topic
+    assert len(got.messages.get("/bench/model", [])) > 10  # 20 ms blocks over seconds
     for topic, expected in messages.items():
         received = got.messages.get(topic, [])
         assert len(received) <= len(expected), topic
