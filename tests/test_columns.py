@@ -302,3 +302,81 @@ def test_large_chunks_formatted_by_two_threads_are_exact_too():
     assert [int(r["counter"]) for r in got] == list(range(len(x)))
     back = np.array([float(r["residual_mps2"]) for r in got])
     assert back.view(np.uint64).tolist() == x.view(np.uint64).tolist()
+
+
+def test_a_layouts_batch_of_a_schema_makes_only_its_columns_booleans_as_0_1_bytes():
+    """The CSV's batch is made of the rows as the CSV takes it: its columns only, in its
+    order, a boolean as uint8 0/1 (any non-zero byte a numpy bool may hold is 1)."""
+    from bench.sinks.tables import CsvFile
+
+    rows = np.zeros(3, dtype=RESULT_DTYPE)
+    rows["n"] = [5, 6, 7]
+    rows["valid"].view(np.uint8)[:] = [0, 1, 2]  # a raw byte 2: still true
+    rows["votes"][:, 1] = [True, False, True]
+    rows["gradient"] = [0.25, np.nan, 3.0]
+    rows["t"] = [T0, 0.0, T0 + 1.5]
+    schema = CsvFile(pa.BufferOutputStream()).schema
+    batch = RESULTS.batch(rows, schema)
+    assert batch.schema.names == CSV_SCHEMA.names  # no receive_time_s, code1, u_mps2 ...
+    assert batch.schema.field("valid").type == pa.uint8()
+    assert batch.column("valid").to_pylist() == [0, 1, 1]
+    assert batch.column("v2").to_pylist() == [1, 0, 1]
+    assert batch.column("gradient_permil").to_pylist() == [0.25, None, 3.0]
+    assert batch.column("counter").to_pylist() == [5, 6, 7]
+    epoch = dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
+    assert batch.column("utc").to_pylist() == [
+        epoch + dt.timedelta(seconds=T0),
+        None,
+        epoch + dt.timedelta(seconds=T0 + 1.5),
+    ]
+
+
+def test_a_large_chunk_written_in_two_halves_is_pyarrows_own_text_of_the_table():
+    """Two threads each write half the rows of a chunk: the file is the header line and
+    then byte for byte what pyarrow's CSV writer makes of the whole table in one call."""
+    import pyarrow.csv as pa_csv
+
+    from bench.sinks.tables import PARALLEL_ROWS
+
+    rng = np.random.default_rng(5)
+    n = PARALLEL_ROWS + 1001  # odd: the halves differ by a row
+    rows = np.zeros(n, dtype=RESULT_DTYPE)
+    rows["n"] = np.arange(n)
+    rows["acc"] = rng.normal(size=(n, 3))
+    rows["gradient"] = np.where(rng.random(n) < 0.2, np.nan, rng.normal(size=n) * 40)
+    rows["valid"] = rng.random(n) < 0.5
+    rows["t"] = T0 + np.arange(n) * 1e-3
+    out = pa.BufferOutputStream()
+    f = CsvFile(out)
+    table = pa.Table.from_batches([RESULTS.batch(rows, f.schema)])
+    f.write(table)
+    f.close()
+    whole = pa.BufferOutputStream()
+    pa_csv.write_csv(table, whole)  # with pyarrow's own header line, quoted
+    header, text = whole.getvalue().to_pybytes().split(b"\n", 1)
+    assert header == b",".join(b'"%s"' % name.encode() for name in CSV_SCHEMA.names)
+    assert out.getvalue().to_pybytes() == ",".join(CSV_SCHEMA.names).encode() + b"\n" + text
+
+
+def test_a_quiet_csv_replay_imports_no_pyarrow_compute(tmp_path):
+    """The CSV's columns are made as it writes them (no cast): `bench replay --csv` does not
+    import pyarrow.compute (about 60 ms of a start). In a fresh interpreter."""
+    import subprocess
+    import sys
+    import textwrap
+
+    log = tmp_path / "board.log"
+    write_candump(log, emulated(2.0, faults=False).frames)
+    out = tmp_path / "r.csv"
+    code = textwrap.dedent(
+        f"""
+        import sys
+        from bench.cli import main
+        assert main(["replay", {str(log)!r}, "--csv", {str(out)!r}, "-q"]) == 0
+        print(sorted(m for m in sys.modules if m.startswith("pyarrow.")))
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "pyarrow.csv" in done.stdout and "pyarrow.compute" not in done.stdout
+    assert len(out.read_text().splitlines()) > 100  # 2 s of 200 rows a second, and a header

@@ -174,16 +174,31 @@ class Layout:
         names: list[str] = self.schema.names
         return names
 
-    def batch(self, rows: np.ndarray) -> pa.RecordBatch:
-        """``rows`` (of this layout's dtype) as one record batch; NaN floats become nulls."""
+    def batch(self, rows: np.ndarray, schema: pa.Schema | None = None) -> pa.RecordBatch:
+        """``rows`` (of this layout's dtype) as one record batch; NaN floats become nulls.
+
+        ``schema``: only its columns (some of this layout's, in the layout's order), a
+        boolean one as ``uint8`` 0/1 where it says so (the CSV's: :func:`csv_schema`,
+        bench.sinks.tables), made from the rows as such: no column is built only to be
+        dropped or cast."""
+        if schema is None:
+            schema = self.schema
+        wanted = {f.name: f.type for f in schema}
         arrays: list[pa.Array] = []
-        for col in self.columns:
-            x = rows[col.field] if col.index is None else rows[col.field][:, col.index]
-            nulls = np.isnan(x) if x.dtype.kind == "f" else None
-            arrays.append(arrow_array(x, _arrow_type(x.dtype), nulls))
-            if col.name == self.utc_after:
+        for f, col in zip(self.schema, self.aligned, strict=True):
+            kind = wanted.get(f.name)
+            if kind is None:
+                continue
+            if col is None:  # the UTC column
                 arrays.append(utc_array(rows["t"]))
-        return pa.RecordBatch.from_arrays(arrays, schema=self.schema)
+                continue
+            x = rows[col.field] if col.index is None else rows[col.field][:, col.index]
+            if x.dtype == np.bool_ and kind == pa.uint8():
+                arrays.append(arrow_array(x.view(np.uint8) != 0, kind))  # 0/1 bytes
+                continue
+            nulls = np.isnan(x) if x.dtype.kind == "f" else None
+            arrays.append(arrow_array(x, kind, nulls))
+        return pa.RecordBatch.from_arrays(arrays, schema=schema)
 
     def rows(self, table: pa.Table | pa.RecordBatch) -> np.ndarray:
         """The rows of ``table`` (written by :meth:`batch`) back as this layout's dtype;
@@ -209,7 +224,7 @@ def arrow_array(x: np.ndarray, kind: pa.DataType, nulls: np.ndarray | None = Non
     null_count = 0
     if nulls is not None and (null_count := int(np.count_nonzero(nulls))):
         validity = pa.py_buffer(np.packbits(~nulls, bitorder="little"))
-    if x.dtype == np.bool_:
+    if x.dtype == np.bool_ and kind == pa.bool_():
         data = pa.py_buffer(np.packbits(x, bitorder="little"))
     else:
         data = pa.py_buffer(np.ascontiguousarray(x))

@@ -82,15 +82,22 @@ class TableFile(Protocol):
 
 
 PARALLEL_ROWS = 8192
-"""Chunks of at least this many rows have their columns turned into text by two threads
-(pyarrow's cast runs without the GIL): text is most of a CSV's cost."""
+"""Chunks of at least this many rows are turned into text by two threads, half the rows
+each (pyarrow's CSV writer runs without the GIL): text is most of a CSV's cost."""
 
 
 class CsvFile:
     """A CSV file of ``schema``'s columns (tables written to it may have more): a plain
     header line (the column names, each ending in its unit), then pyarrow's CSV writer:
     floats in shortest round-trip form, NaN/null as an empty cell, integers as integers,
-    booleans as 0/1."""
+    booleans as 0/1.
+
+    A table of :attr:`schema` (booleans already ``uint8``: what :class:`TableSink` makes
+    for it) is written as it is; another is selected and cast first (pyarrow.compute,
+    about 60 ms to import). A large one is written as two halves of its rows by pyarrow's
+    writer, the first into the file, the second meanwhile into a buffer by a thread of its
+    own, written after it: a row's text does not depend on the rows around it, so the bytes
+    are those of one writer."""
 
     def __init__(
         self,
@@ -103,33 +110,39 @@ class CsvFile:
         self._own = not isinstance(target, pa.NativeFile)
         opener = opener or open_stream  # looked up now: a test may stand in a failing stream
         self._out = opener(target) if isinstance(target, str | Path) else target
-        self._schema = _csv_schema(schema)
+        self.schema = _csv_schema(schema)
         self._out.write((",".join(schema.names) + "\n").encode())
-        self._text_schema = pa.schema([pa.field(f.name, pa.string()) for f in self._schema])
-        options = pa_csv.WriteOptions(include_header=False, quoting_style="none")
-        self._writer = pa_csv.CSVWriter(self._out, self._text_schema, write_options=options)
+        self._options = pa_csv.WriteOptions(include_header=False, quoting_style="none")
         self._pool: ThreadPoolExecutor | None = None
 
     def write(self, table: pa.Table) -> None:
-        table = table.select(self._schema.names).cast(self._schema)
-        if table.num_rows >= PARALLEL_ROWS:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(2, thread_name_prefix="csv text")
-            text = list(self._pool.map(lambda c: c.cast(pa.string()), table.columns))
-        else:
-            text = [c.cast(pa.string()) for c in table.columns]
-        self._writer.write_table(pa.Table.from_arrays(text, schema=self._text_schema))
+        if not table.schema.equals(self.schema):
+            table = table.select(self.schema.names).cast(self.schema)
+        if table.num_rows < PARALLEL_ROWS:
+            pa_csv.write_csv(table, self._out, self._options)
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="csv text")
+        half = table.num_rows // 2
+        second = self._pool.submit(self._text, table.slice(half))
+        try:
+            pa_csv.write_csv(table.slice(0, half), self._out, self._options)
+        finally:
+            text = second.result()  # not left running after a failure
+        self._out.write(text)
+
+    def _text(self, table: pa.Table) -> pa.Buffer:
+        out = pa.BufferOutputStream()
+        pa_csv.write_csv(table, out, self._options)
+        return out.getvalue()
 
     def close(self) -> None:
         if self._pool is not None:
             self._pool.shutdown()
-        try:
-            self._writer.close()
-        finally:
-            if self._own:
-                self._out.close()
-            else:
-                self._out.flush()
+        if self._own:
+            self._out.close()
+        else:
+            self._out.flush()
 
 
 class ParquetFile:
@@ -184,7 +197,9 @@ class TableSink:
     the writer works in chunks of ``chunk_rows``. ``live=True``: the producer never waits
     (rows beyond the bound are lost and counted) and the writer wakes every
     :data:`LIVE_INTERVAL_S`. ``raise_errors``: :meth:`write` raises the first write failure
-    (a replay stops at once); otherwise it is only kept in :attr:`error`."""
+    (a replay stops at once); otherwise it is only kept in :attr:`error`. ``columns``: the
+    layout's columns the file takes, as it takes them (a CSV's: :attr:`CsvFile.schema`),
+    the only ones made of the rows; None: every column."""
 
     def __init__(
         self,
@@ -198,8 +213,10 @@ class TableSink:
         cpus: frozenset[int] | None = None,
         kind: str = "CSV",
         staged: StagedFile | None = None,
+        columns: pa.Schema | None = None,
     ) -> None:
         self.file = file
+        self.columns = columns  # of the layout's columns, those the file takes (all: None)
         self.staged = staged  # the temporary name the file is written under, if any
         self.path = str(staged.path) if staged is not None else file.path
         self.kept = True  # False once a staged file was removed (failed or aborted)
@@ -347,7 +364,7 @@ class TableSink:
                 else:
                     for rows in parts:
                         try:
-                            buffered.append(self.layout.batch(rows))
+                            buffered.append(self.layout.batch(rows, self.columns))
                             n_buffered += len(rows)
                         except Exception as exc:
                             self._fail(exc, len(rows))
@@ -434,9 +451,11 @@ def csv_sink(
     staged = StagedFile(target) if stageable(target) else None
     if layout is not RESULTS:
         kw["schema"] = csv_schema(layout)
+    file = _open(CsvFile, target, "CSV", staged, **kw)
     return TableSink(
-        _open(CsvFile, target, "CSV", staged, **kw),
+        file,
         layout,
+        columns=file.schema,
         live=live,
         raise_errors=not live if raise_errors is None else raise_errors,
         cpus=cpus,
