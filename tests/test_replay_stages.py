@@ -146,3 +146,54 @@ def test_a_first_stage_failure_ends_the_replay_after_the_steps_before_it(
     source.close()
     assert len(sink.steps) == 3  # the three steps before it, completed and written
     assert _none_left(before)
+
+
+def test_the_first_step_is_cut_short_and_the_rows_are_those_of_the_uncut_batches(
+    faulty_log: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The log's first batch is cut after FIRST_STEP_FRAMES frames (the first frames are
+    processed sooner); every array of the steps taken together, and the counts, are those
+    of Pipeline.process over the batches as the log gives them."""
+    monkeypatch.setattr(replay_run, "FIRST_STEP_FRAMES", 1000)
+    config = Config(sample_rate_hz=RATE)
+    source = open_log(faulty_log)
+    batches = list(source.batches(4096))
+    source.close()
+    alone = Pipeline(config)
+    expected = list(run_steps(alone, batches))
+    sink = Steps()
+    source = open_log(faulty_log)
+    outcome = replay(source, config, [sink], batch_frames=4096)
+    source.close()
+    sizes = [len(s.frames) for s in sink.steps]
+    assert sizes[:2] == [1000, len(batches[0].frames) - 1000]
+    assert sizes[2:] == [len(s.frames) for s in expected[1:]]
+    assert [s.seq0 for s in sink.steps[:2]] == [0, 1000]
+    for name in STEP_ARRAYS:
+        if name == "events":  # a step's events go by kind (bench.pipeline.steps): a step
+            continue  # cut in two has the same events in another order; sorted below
+        got = b"".join(getattr(s, name).tobytes() for s in sink.steps)
+        assert got == b"".join(getattr(s, name).tobytes() for s in expected), name
+    got_events = np.sort(np.concatenate([s.events for s in sink.steps]))
+    want_events = np.sort(np.concatenate([s.events for s in expected]))
+    assert len(want_events) > 10 and got_events.tobytes() == want_events.tobytes()
+    assert outcome.pipeline.stats.as_dict() == alone.stats.as_dict()
+    assert outcome.pipeline.stats.events == alone.stats.events
+
+
+def test_a_first_batch_with_notices_or_few_frames_is_not_cut() -> None:
+    from devices.base import SourceBatch, SourceNotice
+    from protocol.frames import empty_frames
+
+    def batch(n: int, notices: int = 0) -> SourceBatch:
+        frames = np.zeros(n, dtype=empty_frames().dtype)
+        frames["t"] = np.arange(n)
+        return SourceBatch(frames, [], [SourceNotice(0.0, "parse_error", "x")] * notices)
+
+    cut = list(replay_run.first_cut([batch(10), batch(7)], 4))
+    assert [len(b.frames) for b in cut] == [4, 6, 7]
+    assert cut[1].frames["t"].tolist() == [4, 5, 6, 7, 8, 9]
+    assert [len(b.frames) for b in replay_run.first_cut([batch(4), batch(9)], 4)] == [4, 9]
+    kept = list(replay_run.first_cut([batch(10, notices=1), batch(9)], 4))
+    assert [(len(b.frames), len(b.notices)) for b in kept] == [(10, 1), (9, 0)]
+    assert list(replay_run.first_cut([], 4)) == []

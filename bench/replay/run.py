@@ -19,6 +19,12 @@ from devices.tomlcheck import printable
 READ_AHEAD = 4
 """Batches read ahead of the pipeline (65 536 frames each, 1.5 MB): while the pipeline is
 built, the reading gets that far."""
+FIRST_STEP_FRAMES = 4096
+"""The frames of a replay's first step, cut from the log's first batch (a candump log's
+first megabyte holds about 25 000): the first frames are decoded, assembled and fused in a
+few milliseconds instead of after the whole batch, whose first stage, beside the estimator's
+kernels loading under the GIL, took about 0.1 s. The steps' rows do not depend on where a
+batch is cut (bench.pipeline.steps)."""
 REFERENCED_AHEAD = 8
 """Steps the first stage (decode, assembly, the reference method) runs ahead of the
 estimator's (about 9 MB each): what it gets done while the estimator's kernels load."""
@@ -36,6 +42,20 @@ def run_steps(pipeline: Pipeline, batches: Iterable[SourceBatch]) -> Iterable[St
     for batch in batches:
         yield pipeline.process(batch)
     yield pipeline.finish()
+
+
+def first_cut(batches: Iterable[SourceBatch], frames: int) -> Iterator[SourceBatch]:
+    """``batches`` with the first cut in two after ``frames`` frames (when it holds more, and
+    no link errors or notices: those stay with their batch, uncut)."""
+    it = iter(batches)
+    for batch in it:
+        if len(batch.frames) > frames and not batch.link_errors and not batch.notices:
+            yield SourceBatch(batch.frames[:frames])
+            yield SourceBatch(batch.frames[frames:])
+        else:
+            yield batch
+        break
+    yield from it
 
 
 def referenced(pipeline: Pipeline, batches: Iterable[SourceBatch]) -> Iterator[Referenced]:
@@ -63,7 +83,7 @@ def replay(
     load from numba's cache: about 0.3 s of a replay's start, under the GIL) and completes
     each step, then feeds it to the sinks. ``before_estimator`` runs here first (a headless
     command's word that a first start compiles)."""
-    ahead = ReadAhead(source.batches(batch_frames), depth=READ_AHEAD)
+    ahead = ReadAhead(first_cut(source.batches(batch_frames), FIRST_STEP_FRAMES), READ_AHEAD)
     sinks = list(sinks)
     parts: list[np.ndarray] = []
     notices: list[str] = []
