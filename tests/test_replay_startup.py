@@ -94,3 +94,38 @@ def test_a_quiet_replay_still_prints_its_warnings(tmp_path) -> None:
     (line,) = err.splitlines()
     assert line.startswith("warning: parse_error: line 2: not a candump line")
     assert line.endswith(": 'not [bold]a frame'")  # as written: no markup taken from a log
+
+
+def _threads_after_a_quiet_replay(log: str, env: dict[str, str]) -> int:
+    code = textwrap.dedent(
+        f"""
+        import os
+        from bench.cli import main
+        assert main(["replay", {log!r}, "-q"]) == 0
+        print(len(os.listdir("/proc/self/task")), os.environ.get("OPENBLAS_NUM_THREADS"))
+        """
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True
+    )
+    count, setting = done.stdout.split()
+    assert setting == env.get("OPENBLAS_NUM_THREADS", "1")
+    return int(count)
+
+
+def test_a_replay_starts_no_openblas_threads_unless_told(tmp_path) -> None:
+    """numpy's OpenBLAS starts a thread per further core at import; a replay asks for none
+    (OPENBLAS_NUM_THREADS=1 before numpy is imported), and an operator's own setting
+    stands: with 2 the process has exactly one thread more."""
+    import os
+
+    import pytest
+
+    if not os.path.isdir("/proc/self/task") or (os.cpu_count() or 1) < 2:
+        pytest.skip("counts threads in /proc; OpenBLAS makes none on one core")
+    log = tmp_path / "board.log"
+    log.write_text("(0.000000) can0 123#0011\n(0.001000) can0 123#2233\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    ours = _threads_after_a_quiet_replay(str(log), env)
+    told = _threads_after_a_quiet_replay(str(log), {**env, "OPENBLAS_NUM_THREADS": "2"})
+    assert told == ours + 1

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -87,7 +88,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def one_blas_thread() -> None:
+    """A replay does no linear algebra large enough for OpenBLAS's threads (the estimator's
+    kernels are numba's): with one thread numpy's import starts no pool of them (about 80 ms
+    of CPU, which a loaded machine takes from the pipeline). Only before numpy is imported,
+    and an operator's own OPENBLAS_NUM_THREADS stands."""
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def run(args: argparse.Namespace) -> int:
+    one_blas_thread()
     from bench.records.columns import RESULTS
     from bench.sinks.tables import abort_all, csv_sink, parquet_sink, results_metadata
     from devices.formats import open_log
