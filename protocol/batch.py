@@ -1,4 +1,4 @@
-"""Decode of a frame batch: :func:`protocol.can_codec.decode` over arrays, one column a field.
+"""Decode of a frame batch (ICD section 1), the bench's one decoder, one column a field.
 
 Returns one column per field; a column is meaningful only where ``kind`` and
 ``outcome`` say so (e.g. ``code`` for ADC frames with outcome OK).

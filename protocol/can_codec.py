@@ -1,6 +1,6 @@
-"""Scalar encode/decode of the ACB-3 CAN frames (ICD section 1), one frame at a time.
-
-The bench decodes frame batches with :mod:`protocol.batch`; tests hold it to this codec.
+"""Encode of the ACB-3 CAN frames (ICD section 1), one frame at a time: what the emulator
+sends and tests build frames with. Decoding has one path, :mod:`protocol.batch`, for any
+batch length.
 """
 
 from __future__ import annotations
@@ -8,27 +8,8 @@ from __future__ import annotations
 import struct
 
 from protocol.crc import frame_crc8
-from protocol.layout import (
-    CODE_MAX,
-    CODE_MIN,
-    DEFAULT_BASE,
-    FRAME_DLC,
-    SPEED_REF_ID,
-    FrameKind,
-    Outcome,
-    classify_id,
-)
-from protocol.records import (
-    NOT_BOARD_FLAGS,
-    AdcSample,
-    BoardStatus,
-    CrcMismatch,
-    DecodeError,
-    Record,
-    SpeedRef,
-    UnknownId,
-    WrongDlc,
-)
+from protocol.layout import CODE_MAX, CODE_MIN, DEFAULT_BASE, SPEED_REF_ID
+from protocol.records import AdcSample, BoardStatus, SpeedRef
 
 
 def _seal(can_id: int, body7: bytes) -> bytes:
@@ -67,30 +48,3 @@ def encode_status(status: BoardStatus, base: int = DEFAULT_BASE) -> tuple[int, b
 def encode_speed(ref: SpeedRef) -> tuple[int, bytes]:
     body = struct.pack("<BiH", ref.counter, ref.speed, ref.timestamp)
     return SPEED_REF_ID, _seal(SPEED_REF_ID, body)
-
-
-def decode(
-    can_id: int, data: bytes, base: int = DEFAULT_BASE, flags: int = 0
-) -> Record | DecodeError:
-    """Decode one frame. Never raises for bad bytes: failures come back as DecodeError.
-
-    ``flags`` (protocol.records.FLAG_*): extended, remote and error frames are never the board's.
-    """
-    kind, channel = classify_id(can_id, base)
-    if kind is FrameKind.OTHER or flags & NOT_BOARD_FLAGS:
-        return UnknownId(Outcome.UNKNOWN_ID, can_id, f"id 0x{can_id:03X}")
-    if len(data) != FRAME_DLC:
-        return WrongDlc(Outcome.WRONG_DLC, can_id, f"dlc {len(data)}, expected {FRAME_DLC}")
-    expected = frame_crc8(can_id, data[:7])
-    if data[7] != expected:
-        return CrcMismatch(
-            Outcome.CRC_MISMATCH, can_id, f"crc 0x{data[7]:02X}, expected 0x{expected:02X}"
-        )
-    if kind is FrameKind.ADC:
-        code = int.from_bytes(data[1:4], "little", signed=True)
-        return AdcSample(channel, data[0], code, data[4], data[5] | (data[6] << 8))
-    if kind is FrameKind.STATUS:
-        counter, state, rate, temp, supply, errors = struct.unpack_from("<BBHbBB", data)
-        return BoardStatus(counter, state, rate, temp, supply, errors)
-    counter, speed, ts = struct.unpack_from("<BiH", data)
-    return SpeedRef(counter, speed, ts)

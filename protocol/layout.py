@@ -71,15 +71,3 @@ class Outcome(IntEnum):
 def status_names(status: int) -> list[str]:
     """Names of the set fault bits of an ADC status byte, e.g. ['OVR', 'CAL']."""
     return [name for bit, name in STATUS_BIT_NAMES.items() if status & bit]
-
-
-def classify_id(can_id: int, base: int = DEFAULT_BASE) -> tuple[FrameKind, int]:
-    """Kind of frame and ADC channel (1..3, else 0) for an identifier."""
-    if can_id == SPEED_REF_ID:
-        return FrameKind.SPEED, 0
-    offset = can_id - base
-    if offset == OFFSET_STATUS:
-        return FrameKind.STATUS, 0
-    if offset in CHANNELS:
-        return FrameKind.ADC, offset
-    return FrameKind.OTHER, 0

@@ -1,4 +1,5 @@
-"""Typed results of decoding: one record type per message, one error type per failure."""
+"""Frames as received, UART link errors, and one record type per message (what the encoders
+take; decoding gives columns, :mod:`protocol.batch`)."""
 
 from __future__ import annotations
 
@@ -75,27 +76,3 @@ class SpeedRef:
 
 
 Record = AdcSample | BoardStatus | SpeedRef
-
-
-@dataclass(frozen=True, slots=True)
-class DecodeError:
-    """Why a frame carries no usable value. ``outcome`` says which failure."""
-
-    outcome: Outcome
-    can_id: int
-    detail: str = ""
-
-
-@dataclass(frozen=True, slots=True)
-class UnknownId(DecodeError):
-    pass
-
-
-@dataclass(frozen=True, slots=True)
-class WrongDlc(DecodeError):
-    pass
-
-
-@dataclass(frozen=True, slots=True)
-class CrcMismatch(DecodeError):
-    pass

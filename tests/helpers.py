@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -14,10 +15,11 @@ import numpy as np
 import pytest
 
 from devices.base import LiveSource, SourceBatch
-from protocol.can_codec import decode, encode_adc, encode_status
+from protocol.batch import decode_batch
+from protocol.can_codec import encode_adc, encode_status
 from protocol.frames import frames_from_raw
-from protocol.layout import DEFAULT_BASE, NOMINAL_SCALE
-from protocol.records import AdcSample, BoardStatus, RawFrame
+from protocol.layout import DEFAULT_BASE, NOMINAL_SCALE, FrameKind, Outcome
+from protocol.records import AdcSample, BoardStatus, RawFrame, Record, SpeedRef
 
 
 def adc(
@@ -144,9 +146,69 @@ def kinds(events: np.ndarray, kind: int) -> np.ndarray:
 def adc_values(frames: np.ndarray) -> np.ndarray:
     """(n, 3) accelerations (m/s^2) of an emulated run's ADC frames at the nominal scale
     (fault-free runs: the frames come in sample order, ch1, ch2, ch3)."""
-    rows = []
-    for f in frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
-        if isinstance(rec, AdcSample):
-            rows.append(rec.code * NOMINAL_SCALE)
+    rows = [r.code * NOMINAL_SCALE for r in records(frames) if isinstance(r, AdcSample)]
     return np.array(rows).reshape(-1, 3)
+
+
+# -- frames as typed records, for reading a test's expectations off them -------------------------
+@dataclass(frozen=True, slots=True)
+class DecodeError:
+    """A frame the bench decodes to no value: ``outcome`` says why."""
+
+    outcome: Outcome
+    can_id: int
+
+
+class UnknownId(DecodeError):
+    pass
+
+
+class WrongDlc(DecodeError):
+    pass
+
+
+class CrcMismatch(DecodeError):
+    pass
+
+
+_ERRORS = {
+    Outcome.UNKNOWN_ID: UnknownId,
+    Outcome.WRONG_DLC: WrongDlc,
+    Outcome.CRC_MISMATCH: CrcMismatch,
+}
+
+
+def records(frames: np.ndarray, base: int = DEFAULT_BASE) -> list[Record | DecodeError]:
+    """A FRAME_DTYPE array through the bench's one decoder (protocol.batch), a typed record
+    (or the failure) per frame: the tests compare them with the ICD's values."""
+    d = decode_batch(frames, base)
+    out: list[Record | DecodeError] = []
+    for i in range(len(d)):
+        outcome = Outcome(int(d.outcome[i]))
+        kind = FrameKind(int(d.kind[i]))
+        counter = int(d.counter[i])
+        if outcome is not Outcome.OK:
+            out.append(_ERRORS[outcome](outcome, int(d.can_id[i])))
+        elif kind is FrameKind.ADC:
+            out.append(
+                AdcSample(
+                    int(d.channel[i]),
+                    counter,
+                    int(d.code[i]),
+                    int(d.status[i]),
+                    int(d.timestamp[i]),
+                )
+            )
+        elif kind is FrameKind.STATUS:
+            status = (d.state, d.sample_rate, d.temperature, d.supply, d.errors)
+            out.append(BoardStatus(counter, *(int(c[i]) for c in status)))
+        else:
+            out.append(SpeedRef(counter, int(d.speed[i]), int(d.timestamp[i])))
+    return out
+
+
+def decode(
+    can_id: int, data: bytes, base: int = DEFAULT_BASE, flags: int = 0
+) -> Record | DecodeError:
+    """One frame as :func:`records` gives it."""
+    return records(frames_from_raw([RawFrame(0.0, can_id, data, flags)]), base)[0]

@@ -18,9 +18,9 @@ import pytest
 
 from devices.emulator import parse_scenario, simulate
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
 from protocol.records import AdcSample
+from tests.helpers import records
 
 RATE = 100
 S30, C30 = math.sin(math.radians(30.0)), math.cos(math.radians(30.0))
@@ -54,11 +54,7 @@ def run(
         """
     ) + dedent(modes)
     sim = simulate(parse_scenario(text, "modes.toml"))
-    rows = [
-        rec.code * NOMINAL_SCALE
-        for f in sim.frames
-        if isinstance(rec := decode(int(f["id"]), bytes(f["data"])), AdcSample)
-    ]
+    rows = [rec.code * NOMINAL_SCALE for rec in records(sim.frames) if isinstance(rec, AdcSample)]
     return np.array(rows).reshape(-1, 3)
 
 

@@ -19,7 +19,7 @@ from devices import base as base_module
 from devices import bus as bus_module
 from devices.base import SourceBatch
 from devices.bus import CanBusSource, frames_from_messages, messages_from_frames
-from protocol.can_codec import decode, encode_adc, encode_speed, encode_status
+from protocol.can_codec import encode_adc, encode_speed, encode_status
 from protocol.frames import FRAME_DTYPE
 from protocol.records import (
     FLAG_ERROR,
@@ -30,7 +30,7 @@ from protocol.records import (
     BoardStatus,
     SpeedRef,
 )
-from tests.helpers import read_until
+from tests.helpers import read_until, records
 
 
 @pytest.fixture
@@ -89,7 +89,7 @@ def test_virtual_round_trip_decodes_to_the_same_records(channel: str, sender: ca
         batches = read_until(src, lambda b: len(all_frames(b)) >= len(RECORDS))
         frames = all_frames(batches)
         assert len(frames) == len(RECORDS)
-        got = [decode(int(f["id"]), bytes(f["data"][: f["dlc"]])) for f in frames]
+        got = records(frames)
         assert got == RECORDS
         assert (frames["flags"] == 0).all() and (frames["dlc"] == 8).all()
         assert ((frames["t"] >= t0 - 1) & (frames["t"] <= time.time() + 1)).all()

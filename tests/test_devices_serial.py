@@ -21,10 +21,10 @@ from cobs import cobs
 from bench.errors import BenchError
 from devices.base import SourceBatch
 from devices.serial_port import DEFAULT_BAUD, SerialSource
-from protocol.can_codec import decode, encode_adc
+from protocol.can_codec import encode_adc
 from protocol.crc import crc16_ccitt_false
 from protocol.records import FLAG_UART, AdcSample
-from tests.helpers import read_until
+from tests.helpers import decode, read_until, records
 
 pytestmark = pytest.mark.skipif(os.name != "posix", reason="needs a pty")
 
@@ -97,7 +97,7 @@ def test_pty_round_trip_recovers_intact_and_counts_broken(pty: tuple[int, str]) 
     src.close()
     frames = np.concatenate([b.frames for b in batches])
     errors = [e for b in batches for e in b.link_errors]
-    got = [decode(int(f["id"]), bytes(f["data"][: f["dlc"]])) for f in frames]
+    got = records(frames)
     assert got == samples
     assert len(errors) == broken
     assert (frames["flags"] == FLAG_UART).all()

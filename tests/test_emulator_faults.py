@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from devices.emulator import parse_scenario, simulate
-from protocol.can_codec import decode
 from protocol.layout import CODE_MAX, CODE_MIN, NOMINAL_SCALE, STATUS_OVR
-from protocol.records import AdcSample, BoardStatus, CrcMismatch
+from protocol.records import AdcSample, BoardStatus
 from protocol.uart import deframe_bytes
+from tests.helpers import CrcMismatch, records
 
 BASE = """
 seed = 21
@@ -56,8 +56,7 @@ def twin():
 def adc_table(sim) -> dict[tuple[int, int], AdcSample]:
     """(channel, sample index) -> decoded ADC record; the sample index from the send time."""
     out = {}
-    for f in sim.frames:
-        r = decode(int(f["id"]), bytes(f["data"]))
+    for f, r in zip(sim.frames, records(sim.frames), strict=True):
         if isinstance(r, AdcSample):
             out[(r.channel, int(f["t"] * 200))] = r  # sent < 5 ms after its instant
     return out
@@ -134,7 +133,7 @@ def test_saturate_clips_with_ovr(value, rail):
         assert (a[(3, k)].code == rail) is inside
         assert bool(a[(3, k)].status & STATUS_OVR) is inside
         assert a[(1, k)].status == a[(2, k)].status == 0
-    errors = [decode(int(f["id"]), bytes(f["data"])) for f in sim.frames if f["id"] == 0x100]
+    errors = records(sim.frames[sim.frames["id"] == 0x100])
     assert [r.errors for r in errors][25] == 0 and errors[35].errors == 1  # the board counts it
 
 
@@ -144,8 +143,8 @@ def test_status_sets_the_bits_and_degrades_the_board():
     for k in range(2000):
         assert a[(1, k)].status == (0x0C if 400 <= k < 600 else 0)
         assert a[(2, k)].status == a[(3, k)].status == 0
-    for f in sim.frames[sim.frames["id"] == 0x100]:
-        r = decode(int(f["id"]), bytes(f["data"]))
+    statuses = sim.frames[sim.frames["id"] == 0x100]
+    for f, r in zip(statuses, records(statuses), strict=True):
         assert isinstance(r, BoardStatus)
         assert r.state == (2 if 2.0 <= f["t"] < 3.0 else 1)
 
@@ -156,11 +155,7 @@ def test_crc_mismatch_exactly_on_the_reported_frames(target, prob):
         f'[[faults]]\nchannel = {target}\nkind = "crc"\nstart_s = 4.0\nend_s = 5.0\n'
         f"probability = {prob}\n"
     )
-    bad = [
-        i
-        for i, f in enumerate(sim.frames)
-        if isinstance(decode(int(f["id"]), bytes(f["data"])), CrcMismatch)
-    ]
+    bad = [i for i, r in enumerate(records(sim.frames)) if isinstance(r, CrcMismatch)]
     eff = sim.effect(1)
     assert bad == eff.frames.tolist() and len(bad) > 20
     t = sim.frames["t"][bad]

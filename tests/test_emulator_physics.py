@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from devices.emulator import parse_scenario, simulate
-from protocol.can_codec import decode
 from protocol.layout import CODE_MAX, NOMINAL_SCALE, STATUS_OVR
 from protocol.records import AdcSample, BoardStatus, SpeedRef
+from tests.helpers import records
 
 G = 9.81  # deliberately not G0: the world's gravity must come from the scenario
 
@@ -119,7 +119,7 @@ _decoded: dict[int, list] = {}
 def decoded(sim):
     """Every frame decoded with protocol.can_codec (once per simulation)."""
     if id(sim) not in _decoded:
-        _decoded[id(sim)] = [decode(int(f["id"]), bytes(f["data"])) for f in sim.frames]
+        _decoded[id(sim)] = records(sim.frames)
     return _decoded[id(sim)]
 
 
@@ -239,7 +239,7 @@ def test_over_range_clips_with_ovr():
         ),
         "ovr.toml",
     )
-    recs = [decode(int(f["id"]), bytes(f["data"])) for f in simulate(sc).frames]
+    recs = records(simulate(sc).frames)
     adc = [r for r in recs if isinstance(r, AdcSample)]
     ch1 = {(r.code, r.status) for r in adc if r.channel == 1}
     ch2 = {(r.code, r.status) for r in adc if r.channel == 2}
@@ -259,7 +259,7 @@ def test_white_noise_has_the_configured_deviation():
         "[[channels]]\n[[channels]]\nnoise_mps2 = 0.002\n",
         "noise.toml",
     )
-    recs = [decode(int(f["id"]), bytes(f["data"])) for f in simulate(sc).frames]
+    recs = records(simulate(sc).frames)
     recs = [r for r in recs if isinstance(r, AdcSample)]
     by_ch = {
         c: np.array([r.code for r in recs if r.channel == c]) * NOMINAL_SCALE for c in (1, 2, 3)

@@ -17,10 +17,9 @@ import pytest
 
 from devices.emulator import calibration_toml, parse_scenario, simulate
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
 from protocol.records import BoardStatus, SpeedRef
-from tests.helpers import adc_values
+from tests.helpers import adc_values, records
 
 S30 = math.sin(math.radians(30.0))
 C30 = math.cos(math.radians(30.0))
@@ -39,8 +38,7 @@ def adc(sim) -> np.ndarray:
 def speeds(sim) -> tuple[np.ndarray, np.ndarray]:
     """(send time s, reported speed m/s) of every SPEED_REF frame."""
     t, v = [], []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
+    for f, rec in zip(sim.frames, records(sim.frames), strict=True):
         if isinstance(rec, SpeedRef):
             t.append(float(f["t"]))
             v.append(rec.speed / 1000.0)
@@ -402,11 +400,7 @@ def test_bias_drifts_with_the_board_temperature_it_reports():
         assert acc[k, 0] == pytest.approx(want1, abs=NOMINAL_SCALE)
         assert acc[k, 2] == pytest.approx(want3, abs=NOMINAL_SCALE)
         assert acc[k, 1] == 0.0
-    temps = [
-        rec.temperature
-        for f in sim.frames
-        if isinstance(rec := decode(int(f["id"]), bytes(f["data"])), BoardStatus)
-    ]
+    temps = [rec.temperature for rec in records(sim.frames) if isinstance(rec, BoardStatus)]
     assert len(temps) == 3000
     for k, temp in enumerate(temps):
         t = 0.0005 + 0.1 * k  # BOARD_STATUS k describes this instant

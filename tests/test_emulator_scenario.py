@@ -27,8 +27,8 @@ from devices.emulator.scenario import (
     Scenario,
     VibrationModel,
 )
-from protocol.can_codec import decode
 from protocol.records import AdcSample
+from tests.helpers import records
 
 
 def test_defaults_are_nominal_level_standstill_no_faults():
@@ -209,8 +209,7 @@ def test_different_seed_different_noise():
     assert a.truth.tobytes() == b.truth.tobytes()  # the world is the same...
 
     def codes(s):
-        recs = (decode(int(f["id"]), bytes(f["data"])) for f in s.frames[:300])
-        return [r.code for r in recs if isinstance(r, AdcSample)]
+        return [r.code for r in records(s.frames[:300]) if isinstance(r, AdcSample)]
 
     assert codes(a) != codes(b)  # ...the noise is not
     assert a.uart_bytes() != b.uart_bytes()
@@ -220,7 +219,7 @@ def test_counter_and_timestamp_wrap():
     sc = parse_scenario(
         "counter0 = 250\nboard_time0_ticks = 65000\nduration_s = 1.0\n", "wrap.toml"
     )
-    recs = [decode(int(f["id"]), bytes(f["data"])) for f in simulate(sc).frames]
+    recs = records(simulate(sc).frames)
     ch1 = [r for r in recs if isinstance(r, AdcSample) and r.channel == 1]
     assert [r.counter for r in ch1[:9]] == [250, 251, 252, 253, 254, 255, 0, 1, 2]
     # 200 Hz = 50 ticks per sample: 65000, 65050, ..., 65500, then 14 (65550 - 65536)

@@ -18,9 +18,9 @@ import pytest
 from devices.emulator import parse_scenario, simulate, start_virtual_board
 from devices.emulator.two_boards import board_b, simulate_bus
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import G0, NOMINAL_SCALE
 from protocol.records import AdcSample
+from tests.helpers import records
 
 TWO = """
 seed = 4
@@ -56,13 +56,10 @@ ON_GRADE = G0 * math.sin(math.atan(0.020))  # 0.19609 m/s^2
 
 def ch2(frames: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray]:
     """(send time, acceleration) of a board's ch2 (0 deg) frames."""
-    t, a = [], []
-    for f in frames[frames["id"] == base + 2]:
-        rec = decode(int(f["id"]), bytes(f["data"]), base)
-        assert isinstance(rec, AdcSample)
-        t.append(float(f["t"]))
-        a.append(rec.code * NOMINAL_SCALE)
-    return np.array(t), np.array(a)
+    mine = frames[frames["id"] == base + 2]
+    recs = records(mine, base)
+    assert all(isinstance(rec, AdcSample) for rec in recs)
+    return mine["t"].astype(float), np.array([rec.code for rec in recs]) * NOMINAL_SCALE
 
 
 @pytest.fixture(scope="module")

@@ -5,10 +5,11 @@ from __future__ import annotations
 import pytest
 
 from protocol.batch import decode_batch
-from protocol.can_codec import decode, encode_adc
+from protocol.can_codec import encode_adc
 from protocol.frames import frames_from_raw
 from protocol.layout import FrameKind, Outcome
-from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, AdcSample, RawFrame, UnknownId
+from protocol.records import FLAG_ERROR, FLAG_EXTENDED, FLAG_REMOTE, AdcSample, RawFrame
+from tests.helpers import UnknownId, decode
 
 
 @pytest.mark.parametrize("flag", [FLAG_EXTENDED, FLAG_REMOTE, FLAG_ERROR])

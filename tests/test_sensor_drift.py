@@ -17,10 +17,9 @@ from devices.emulator import parse_scenario, simulate
 from devices.emulator.body_pitch import scenario_stations
 from devices.emulator.stream import RunCounts, simulate_chunks
 from devices.errors import ConfigError
-from protocol.can_codec import decode
 from protocol.layout import NOMINAL_SCALE
 from protocol.records import BoardStatus
-from tests.helpers import adc_values
+from tests.helpers import adc_values, records
 
 # level, no hum, no pitch, no body modes: ch2 (0 deg) reads its own bias drift alone
 QUIET = """
@@ -43,8 +42,7 @@ def adc(sim) -> np.ndarray:
 
 def status_temperatures(sim) -> tuple[np.ndarray, np.ndarray]:
     t, temp = [], []
-    for f in sim.frames:
-        rec = decode(int(f["id"]), bytes(f["data"]))
+    for f, rec in zip(sim.frames, records(sim.frames), strict=True):
         if isinstance(rec, BoardStatus):
             t.append(float(f["t"]))
             temp.append(rec.temperature)
