@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from bench.records.events import EventKind, describe
+from bench.sinks.base import Sink
 from devices.base import FileSource, LiveSource, SourceBatch
 
 if TYPE_CHECKING:  # a type only: the screen process imports this module, not the pipeline
@@ -475,7 +476,7 @@ def _safe(fn: Callable[[], int]) -> int:
         return 0
 
 
-class ReplayTap:
+class ReplayTap(Sink):
     """Sink that reports pipeline progress back to the :class:`ReplaySource` (flow control,
     seek to the next vote failure). Add it to the runner before starting it."""
 
@@ -515,9 +516,3 @@ class ReplayTap:
         """While the estimator's kernel is prepared the runner previews its steps: they
         move the replay on as much as the full ones (bench.live.runner)."""
         self.write(step)
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass

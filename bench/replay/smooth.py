@@ -77,7 +77,7 @@ def with_smoothed(results: np.ndarray, smoothed: Smoothed, start: int) -> np.nda
     return out
 
 
-class SmoothedSinks:
+class SmoothedSinks(Sink):
     """A sink that writes each step's results, with the smoothed columns, to table sinks
     made with the :data:`~bench.replay.model_columns.LAYOUT` layout."""
 
@@ -99,12 +99,6 @@ class SmoothedSinks:
             return
         for sink in self.sinks:
             sink.put(rows)
-
-    def mark(self, t: float, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
     def check_complete(self) -> None:
         """Both readings of the log gave the same number of samples."""

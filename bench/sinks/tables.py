@@ -36,6 +36,7 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
 from bench.records.columns import CSV_SCHEMA, RESULTS, Layout, csv_schema
+from bench.sinks.base import Sink
 from bench.sinks.paths import STDOUT, check_output_file, describe_os_error
 from devices.paths import StagedFile, stageable
 
@@ -190,7 +191,7 @@ def results_csv_text(results: np.ndarray) -> str:
     return out.getvalue().to_pybytes().decode()
 
 
-class TableSink:
+class TableSink(Sink):
     """Pipeline results -> a :class:`TableFile`, written by a thread of its own.
 
     ``live=False`` (a replay): the producer waits while ``max_pending_rows`` are queued, and
@@ -272,9 +273,6 @@ class TableSink:
             if not self.live and self._pending_rows >= self.take_rows:
                 self._cond.notify_all()
         self._raise()
-
-    def mark(self, t: float, text: str) -> None:
-        pass
 
     def close(self) -> None:
         """Write what is queued, finish the file and rename it into place; raises the
