@@ -196,6 +196,7 @@ class Layout:
             if x.dtype == np.bool_ and kind == pa.uint8():
                 arrays.append(arrow_array(x.view(np.uint8) != 0, kind))  # 0/1 bytes
                 continue
+            x = np.ascontiguousarray(x)  # one pass over the rows' stride, then contiguous
             nulls = np.isnan(x) if x.dtype.kind == "f" else None
             arrays.append(arrow_array(x, kind, nulls))
         return pa.RecordBatch.from_arrays(arrays, schema=schema)
