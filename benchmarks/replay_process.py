@@ -1,13 +1,15 @@
 """Whole-process ``bench replay`` of a candump log next to python-can's bare ``LogReader``
 iteration of the same file, each in a fresh interpreter, alternated, best of ``repeat``.
 
-Issue 29's figures: the process's wall time from launch to exit (imports, reading,
-the pipeline, the output file closed) for ``--csv`` (target >= 3x the LogReader process's
-frame rate) and ``--parquet`` (>= 4x), without an output file (informational), and the
-start-up: from launch to the first frames processed (decoded, assembled, fused by the
-reference method: the end of the first step's first stage; target <= 0.4 s) and, for
-information, to the first complete rows (the estimator's columns in them), taken in the same
-processes (the child notes when ``Pipeline.reference`` and ``Pipeline.estimate`` first return).
+Issue 29's figures (the best of ``repeat``, the median and the machine's load beside it: a
+shared machine's figures move with it): the process's wall time from launch to exit
+(imports, reading, the pipeline, the output file closed) for ``--csv`` (target >= 3x the
+LogReader process's frame rate) and ``--parquet`` (>= 4x), without an output file
+(informational), and the start-up: from launch to the first frames processed (decoded,
+assembled, fused by the reference method: the end of the first step's first stage; target
+<= 0.4 s) and, for information, to the first complete rows (the estimator's columns in
+them), taken in the same processes (the child notes when ``Pipeline.reference`` and
+``Pipeline.estimate`` first return).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import resource
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -129,6 +132,9 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
             "csv": ["--csv", str(d / "out.csv")],
             "parquet": ["--parquet", str(d / "out.parquet")],
         }
+        walls: dict[str, list[float]] = {}
+        anchors: list[float] = []
+        load = os.getloadavg()[0]
         best: dict[str, float] = {}
         cpu: dict[str, float] = {}
         first: dict[str, float] = {}
@@ -138,6 +144,7 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
         for _ in range(repeat):  # alternated: the anchor and each variant under the same load
             dt, noted, _ = _run(_ANCHOR, [str(log)], times)
             anchor_s = min(anchor_s, dt)
+            anchors.append(dt)
             cpu["anchor"] = min(cpu.get("anchor", float("inf")), noted["cpu_s"])
             for name, extra in variants.items():
                 dt, noted, _ = _run(_BENCH, [str(log), *extra], times)
@@ -145,17 +152,20 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
                     errors[name] = noted.get("error") or f"exit {noted.get('code')}"
                     continue
                 best[name] = min(best.get(name, float("inf")), dt)
+                walls.setdefault(name, []).append(dt)
                 cpu[name] = min(cpu.get(name, float("inf")), noted["cpu_s"])
                 for key, into in (("first_step", first), ("first_row", first_row)):
                     if noted.get(key) is not None:
                         into[name] = min(into.get(name, float("inf")), noted[key])
         anchor = n_frames / anchor_s
+        loads = f"load {load:.1f}-{os.getloadavg()[0]:.1f}"  # 1-min averages, start and end
         for name, label, target in (
             ("none", "replay process, candump .log", None),
             ("csv", "replay process, candump .log + CSV", CSV_TARGET),
             ("parquet", "replay process, candump .log + Parquet", PARQUET_TARGET),
         ):
             wall = best.get(name)
+            median = statistics.median(walls[name]) if name in walls else None
             figures.append(
                 Figure(
                     f"replay_process_{name}",
@@ -168,16 +178,20 @@ def measure(n_frames: int = 1_200_000, repeat: int = 2, workdir: str | None = No
                     anchor_label="python-can LogReader process",
                     detail=(
                         f"`bench replay LOG {' '.join(variants[name])}`, launch to exit "
-                        f"{wall:.2f} s, best of {repeat}; LogReader process {anchor_s:.2f} s; "
+                        f"{wall:.2f} s, best of {repeat} (median {median:.2f} s); LogReader "
+                        f"process {anchor_s:.2f} s (median {statistics.median(anchors):.2f} s); "
                         f"CPU {cpu[name]:.2f} s, LogReader {cpu['anchor']:.2f} s; "
-                        f"{n_frames} frames, {log.stat().st_size / 1e6:.0f} MB"
+                        f"{n_frames} frames, {log.stat().st_size / 1e6:.0f} MB; {loads}"
                         if wall
                         else ""
                     ),
                     error=errors.get(name, ""),
                     extra={
                         "seconds": wall,
+                        "median_seconds": median,
                         "anchor_seconds": anchor_s,
+                        "anchor_median_seconds": statistics.median(anchors),
+                        "load": loads,
                         "cpu_s": cpu.get(name),
                         "anchor_cpu_s": cpu.get("anchor"),
                     },
