@@ -100,6 +100,7 @@ def _snapshot(rec: RecordingStatus) -> Any:
         frames_dropped=0,
         recording=rec,
         output_errors=[],
+        model=None,  # a run without the live model (--lag)
     )
 
 
