@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from bench.fusion.model import ekf, linalg, measure, process, smoother, state
+from bench.fusion.model import ekf, jump, linalg, measure, process, smoother, state
 from bench.fusion.model.state import B1, B2, B3, NX, TB, TW, A, C, E, K, L, P, S, V
 
 G = 9.80665
@@ -416,3 +416,66 @@ def test_spd_solve_is_the_inverse_times_b() -> None:
     want = np.zeros_like(b)
     want[rest] = np.linalg.solve(known[np.ix_(rest, rest)], b[rest])
     np.testing.assert_allclose(linalg.spd_solve(known, b), want, atol=1e-12)
+
+
+# ---- the vertical-curve jump test (bench.fusion.model.jump)
+def test_the_jump_test_off_is_the_model_without_it() -> None:
+    """curve_rate_step_per_m = 0 keeps no hypothesis and corrects nothing."""
+    prm = state.ModelParams(curve_rate_step_per_m=0.0)
+    glr = jump.hypotheses(prm, 0.02)
+    assert glr.shape == (100, jump.WIDTH)
+    x, p = state.initial(prm)
+    jump.propagate(glr, np.eye(state.NX), 1.0, 0.0, prm.array())
+    assert np.all(glr[:, jump.AGE] == -1.0)
+    x2, p2, added, step, age = jump.test(glr, x, p, 1.0, prm.array())
+    assert step == 0.0 and age == -1.0 and not added.any()
+    assert np.array_equal(x2, x) and np.array_equal(p2, p)
+    assert math.isfinite(float(p2.sum()))
+
+
+def test_the_correction_is_the_filter_that_knew_the_step_on_a_linear_model() -> None:
+    """On a linear model the corrected (x, P) is exactly the Kalman filter whose prior had
+    the step's N(0, s^2) on K added at the onset (the reference: a plain filter run twice)."""
+    rng = np.random.default_rng(3)
+    prm_obj = state.ModelParams(curve_min_age_s=0.0, curve_spacing_m=1.0)
+    prm = prm_obj.array()
+    x_lin = np.zeros(state.NX)
+    x_lin[state.V], x_lin[state.A], x_lin[state.S] = 15.0, 0.3, 0.1
+    phi = np.eye(state.NX)
+    phi[state.V, state.A] = 0.02
+    phi[state.S, state.K] = 15.0 * 0.02
+    q = np.diag(np.full(state.NX, 1e-10))
+    th = np.radians([30.0, 0.0, -30.0])
+    h = measure.channels_jacobian(x_lin, np.cos(th), np.sin(th), prm)
+    r = np.eye(3) * 1e-4
+    x0, p0 = state.initial(prm_obj, 15.0, 0.1)
+    truth = x0.copy()
+    onset, n = 20, 60
+    zs = []
+    for k in range(n):
+        truth = phi @ truth
+        if k == onset:
+            truth[state.K] += 2e-3
+        zs.append(h @ truth + rng.normal(0.0, 1e-2, 3))
+
+    def run(with_prior: bool, glr: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        x, p = x0.copy(), p0.copy()
+        for k in range(n):
+            if glr is not None:
+                jump.propagate(glr, phi, 1.0 if k == onset else 0.0, float(k), prm)
+            x, p = phi @ x, phi @ p @ phi.T + q
+            if with_prior and k == onset:
+                p[state.K, state.K] += prm_obj.curve_rate_step_per_m**2
+            x, p, _, gain, s_inv, nu = ekf.update_full(x, p, zs[k], h @ x, h, r)
+            if glr is not None:
+                jump.follow(glr, h, gain, s_inv, nu)
+        return x, p
+
+    glr = jump.hypotheses(prm_obj, 0.02)[:1]  # one hypothesis: the onset's
+    x_a, p_a = run(False, glr)
+    assert glr[0, jump.AGE] == n - 1 - onset
+    x_c, p_c, _, step, age = jump.test(glr, x_a, p_a, float(n), prm)
+    x_b, p_b = run(True, None)
+    assert age == n - 1 - onset and step == pytest.approx(2e-3, rel=0.2)
+    np.testing.assert_allclose(x_c, x_b, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(p_c, p_b, rtol=1e-6, atol=1e-15)

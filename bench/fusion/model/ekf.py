@@ -37,9 +37,10 @@ def _times(m: np.ndarray, h: np.ndarray) -> np.ndarray:
 @jit
 def _update_scalar(
     x: np.ndarray, cov: np.ndarray, nu: float, h: np.ndarray, r: float
-) -> tuple[np.ndarray, np.ndarray, float]:
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, float]:
     """:func:`update` for one measurement (the odometer's), in loops without temporaries:
-    the same Joseph form X = P - k (P h)^T, X - (X h) k^T + r k k^T."""
+    the same Joseph form X = P - k (P h)^T, X - (X h) k^T + r k k^T; also the gain k and
+    the innovation variance s."""
     n = len(x)
     ph = _times(cov, h)
     s = r
@@ -58,23 +59,30 @@ def _update_scalar(
             a = xm[i, j] - xh[i] * gain[j] + r * gain[i] * gain[j]
             b = xm[j, i] - xh[j] * gain[i] + r * gain[j] * gain[i]
             p[i, j] = p[j, i] = 0.5 * (a + b)
-    return x_new, p, nu * nu / s
+    return x_new, p, nu * nu / s, gain, s
 
 
 @jit
-def update(
+def update_full(
     x: np.ndarray,
     cov: np.ndarray,
     z: np.ndarray,
     hx: np.ndarray,
     jac: np.ndarray,
     r: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """The update by measurement z (expected hx, H = jac, noise R): (x, P, NIS), NIS the
-    normalised innovation squared nu^T S^-1 nu (chi-square with len(z) degrees of freedom
-    when the model is right: the same number gates and isolates)."""
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`update` and what it applied: (x, P, NIS, gain K (n, m), S^-1 (m, m), the
+    innovation nu (m,)), which the jump test (bench.fusion.model.jump) follows."""
     if len(z) == 1:
-        return _update_scalar(x, cov, z[0] - hx[0], jac[0], r[0, 0])
+        nu1 = z[0] - hx[0]
+        x1, p1, nis1, g1, s1 = _update_scalar(x, cov, nu1, jac[0], r[0, 0])
+        gain1 = np.empty((len(x), 1))
+        gain1[:, 0] = g1
+        s_inv1 = np.empty((1, 1))
+        s_inv1[0, 0] = 1.0 / s1
+        nuv = np.empty(1)
+        nuv[0] = nu1
+        return x1, p1, nis1, gain1, s_inv1, nuv
     nu = z - hx
     ph = mm(cov, jac.T.copy())
     s_inv = spd_inverse(mm(jac, ph) + r)
@@ -91,4 +99,23 @@ def update(
     s_nu = mv(s_inv, nu)
     for i in range(len(nu)):
         nis += nu[i] * s_nu[i]
-    return x_new, p, nis
+    return x_new, p, nis, gain, s_inv, nu
+
+
+@jit
+def update(
+    x: np.ndarray,
+    cov: np.ndarray,
+    z: np.ndarray,
+    hx: np.ndarray,
+    jac: np.ndarray,
+    r: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The update by measurement z (expected hx, H = jac, noise R): (x, P, NIS), NIS the
+    normalised innovation squared nu^T S^-1 nu (chi-square with len(z) degrees of freedom
+    when the model is right: the same number gates and isolates)."""
+    if len(z) == 1:
+        x1, p1, nis1, _, _ = _update_scalar(x, cov, z[0] - hx[0], jac[0], r[0, 0])
+        return x1, p1, nis1
+    xn, pn, nis, _, _, _ = update_full(x, cov, z, hx, jac, r)
+    return xn, pn, nis

@@ -18,7 +18,7 @@ from typing import Protocol
 import numpy as np
 
 from bench.config import Config
-from bench.fusion.model import run, smoother, state
+from bench.fusion.model import jump, run, smoother, state
 
 BLOCK_S = 0.02
 """The model's step: the channel readings are averaged over blocks of at most this long."""
@@ -57,6 +57,9 @@ class Smoothed:
     # the body's pitch compliance C (settled pitch per m/s^2, nose up accelerating) and sigma
     compliance_deg_per_mps2: float = math.nan
     compliance_sigma_deg_per_mps2: float = math.nan
+    # the vertical-curve jumps the forward pass found, per block (sample i is in block
+    # i // block): K's step (m/s^2 per m) and its onset that many blocks before, (0, -1) none
+    jumps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def describe(self) -> str:
         """One line: what the smoother learnt of the odometer."""
@@ -170,14 +173,16 @@ class ModelLog:
         x0, p0 = state.initial(prm_obj)
         prm = prm_obj.array()
         accept = np.ones(len(fa), dtype=np.bool_)
-        causal_x = causal_p = np.zeros(0)
+        causal_x = causal_p = causal_jumps = np.zeros(0)
         for done in range(1, PASSES + 1):
-            t_mid, xp, pp, xf, pf, jac, _ = run.forward(
+            t_mid, xp, pp, xf, pf, jac, _, jumps = run.forward(
                 b, y, used, fa, fw, fs, fr, fst, accept, np.cos(th), np.sin(th), prm,
-                x0, p0, block, ODOMETER_GATE, CHANNEL_GATE, np.zeros(2), 0.0, True,
+                x0, p0, block, ODOMETER_GATE, CHANNEL_GATE, np.zeros(2),
+                jump.hypotheses(prm_obj, BLOCK_S), 0.0, True,
             )  # fmt: skip
             if not len(causal_x):
-                causal_x, causal_p = xf, pf  # the filter alone: what a live run could give
+                # the filter alone: what a live run could give
+                causal_x, causal_p, causal_jumps = xf, pf, jumps
             last = done == PASSES or not len(fa)
             # a pass that only finds the slipping frames needs no smoothed covariance
             xs, ps = smoother.rts(xp, pp, xf, pf, jac, last)
@@ -209,6 +214,7 @@ class ModelLog:
             block=block,
             compliance_deg_per_mps2=math.degrees(float(xs[0, state.C])),
             compliance_sigma_deg_per_mps2=math.degrees(math.sqrt(float(ps[0, state.C, state.C]))),
+            jumps=causal_jumps,
         )
 
 

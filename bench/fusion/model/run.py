@@ -15,9 +15,9 @@ import sys
 import numpy as np
 
 from bench.fusion.kernel_cache import drop_stale
-from bench.fusion.model import _jit, ekf, linalg, measure, process, smoother, state
+from bench.fusion.model import _jit, ekf, jump, linalg, measure, process, smoother, state
 from bench.fusion.model._jit import jit
-from bench.fusion.model.ekf import predict, update
+from bench.fusion.model.ekf import predict, update_full
 from bench.fusion.model.state import NX, P_RCH, P_RODO, P_VTAU, A, E, V
 
 ZUPT_SIGMA_MPS2 = 0.002
@@ -59,34 +59,39 @@ def _channel_update(
     prm: np.ndarray,
     gate: float,
     vib: np.ndarray,
+    glr: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Update by the block's mean readings of the channels with count > 0 (vib: the body's
-    vibration variances along and normal to the track); returns the channel left out
-    (0-2), -1 none, -2 the block taken as a step of acceleration."""
+    vibration variances along and normal to the track), the update kept followed by the
+    jump test's hypotheses (glr); returns the channel left out (0-2), -1 none, -2 the block
+    taken as a step of acceleration."""
     hfull = measure.channels(x, cos_th, sin_th, prm)
     jfull = measure.channels_jacobian(x, cos_th, sin_th, prm)
     rfull = measure.channels_noise(cos_th, sin_th, prm, vib[0], vib[1])
-    best = (x, cov, -1)
+    best = (x, cov, -1, np.zeros((0, NX)), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros(0))
     best_nis = np.inf
     for drop in range(-1, 3):
         idx = [i for i in range(3) if count[i] > 0 and i != drop]
         if len(idx) < 2 or (drop >= 0 and count[drop] == 0):
             continue
         z, hx, jac, r = _rows(idx, ymean, count, hfull, jfull, rfull, prm)
-        xn, pn, nis = update(x, cov, z, hx, jac, r)
+        xn, pn, nis, gain, s_inv, nu = update_full(x, cov, z, hx, jac, r)
         if drop == -1 and nis <= gate:
+            jump.follow(glr, jac, gain, s_inv, nu)
             return xn, pn, -1
         if nis < best_nis:
-            best_nis, best = nis, (xn, pn, drop)
+            best_nis, best = nis, (xn, pn, drop, jac, gain, s_inv, nu)
     if best_nis <= gate and best[2] >= 0:
-        return best
+        jump.follow(glr, best[3], best[4], best[5], best[6])
+        return best[0], best[1], best[2]
     # no channel explains it: a step of acceleration (a notch): raise A's variance, again
-    nu = ymean[1] - hfull[1] if count[1] > 0 else ymean[0] - hfull[0]
+    nu1 = ymean[1] - hfull[1] if count[1] > 0 else ymean[0] - hfull[0]
     cov2 = cov.copy()
-    cov2[A, A] += nu * nu
+    cov2[A, A] += nu1 * nu1
     idx = [i for i in range(3) if count[i] > 0]
     z, hx, jac, r = _rows(idx, ymean, count, hfull, jfull, rfull, prm)
-    xn, pn, _ = update(x, cov2, z, hx, jac, r)
+    xn, pn, _, gain, s_inv, nu = update_full(x, cov2, z, hx, jac, r)
+    jump.follow(glr, jac, gain, s_inv, nu)
     return xn, pn, -2
 
 
@@ -143,19 +148,26 @@ def forward(
     odo_gate: float,
     ch_gate: float,
     vib: np.ndarray,
+    glr: np.ndarray,
     t_prev0: float,
     first: bool,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray
+]:
     """b (N,) board time s; y (N, 3) readings m/s^2; used (N, 3) channel usable; frames
     (anchor sample, board time measured, speed m/s, restart, standstill, and whether it
     may be applied: a smoother's second pass leaves out the frames its first found
     slipping). Returns per block: mid-time, predicted x and P, filtered x and P, the
-    Jacobian into the block, and odometer rejects.
+    Jacobian into the block, odometer rejects, and the vertical-curve jump found at the
+    block (bench.fusion.model.jump): (K's step, its onset that many blocks before), (0, -1)
+    for none; a jump's correction covariance is in the block's predicted P (the smoother
+    takes it as process noise into the block).
 
     A stream goes on where the last call ended (bench.fusion.model.stream): x0, p0 the
-    last block's filtered state, vib (2,) the body's vibration learnt so far (updated in
-    place), t_prev0 the last block's mid-time; ``first`` for the stream's first block,
-    which predicts from b[0] whatever its dt."""
+    last block's filtered state, vib (2,) the body's vibration learnt so far and glr the
+    jump test's onset hypotheses (both updated in place), t_prev0 the last block's
+    mid-time; ``first`` for the stream's first block, which predicts from b[0] whatever
+    its dt."""
     n = len(b)
     nb = (n + block - 1) // block
     t_mid = np.empty(nb)
@@ -163,6 +175,8 @@ def forward(
     xf, pf = np.empty((nb, NX)), np.empty((nb, NX, NX))
     jac = np.zeros((nb, NX, NX))
     rejects = np.zeros(nb)
+    jumps = np.zeros((nb, 2))
+    jumps[:, 1] = -1.0
     x, cov = x0.copy(), p0.copy()
     t_prev = b[0] if first and n else t_prev0
     fi = 0
@@ -178,6 +192,7 @@ def forward(
         if dt > 0.0 or (first and k == 0):
             fj = process.jacobian(x, dt, prm)
             q = process.noise(x, dt, prm)
+            jump.propagate(glr, fj, abs(x[V]) * dt, tm, prm)
             x, cov = predict(process.f(x, dt, prm), fj, cov, q)
             jac[k] = fj
         else:
@@ -200,24 +215,30 @@ def forward(
                 cov[V, :] = 0.0
                 cov[:, V] = 0.0
                 cov[V, V] = prm[P_RODO] * prm[P_RODO]
+                jump.restart_speed(glr)
             hx = measure.odometer(x, delta)
             hj = measure.odometer_jacobian(x, delta)
-            xn, pn, nis = update(x, cov, z, hx, hj, measure.odometer_noise(prm))
+            xn, pn, nis, gain, s_inv, nu = update_full(
+                x, cov, z, hx, hj, measure.odometer_noise(prm)
+            )
             if nis <= odo_gate:
                 x, cov = xn, pn
+                jump.follow(glr, hj, gain, s_inv, nu)
             else:
                 rejects[k] += 1
             if fst[fi] and fs[fi] == 0.0:
                 za = np.zeros(1)
                 ha = np.zeros(1)
                 ha[0] = x[A]
-                x, cov, _ = update(x, cov, za, ha, h_zupt, r_zupt)
+                x, cov, _, gain, s_inv, nu = update_full(x, cov, za, ha, h_zupt, r_zupt)
+                jump.follow(glr, h_zupt, gain, s_inv, nu)
                 hv = np.zeros((1, NX))
                 hv[0, V] = 1.0
                 zv = np.zeros(1)
                 xv = np.zeros(1)
                 xv[0] = x[V]
-                x, cov, _ = update(x, cov, zv, xv, hv, r_zupt)
+                x, cov, _, gain, s_inv, nu = update_full(x, cov, zv, xv, hv, r_zupt)
+                jump.follow(glr, hv, gain, s_inv, nu)
             fi += 1
         ymean[:] = 0.0
         count[:] = 0.0
@@ -232,11 +253,19 @@ def forward(
                     ymean[c] /= count[c]
             if count.min() > 0:
                 _learn_vibration(vib, x, ymean, count, cos_th, sin_th, prm, dt)
-            x, cov, _ = _channel_update(x, cov, ymean, count, cos_th, sin_th, prm, ch_gate, vib)
+            x, cov, _ = _channel_update(
+                x, cov, ymean, count, cos_th, sin_th, prm, ch_gate, vib, glr
+            )
+        x, cov, added, step, age = jump.test(glr, x, cov, tm, prm)
+        if age >= 0.0:
+            pp[k] += added  # the step as process noise into this block, for the smoother
+            jumps[k, 0], jumps[k, 1] = step, age
         xf[k], pf[k] = x, cov
-    return t_mid, xp, pp, xf, pf, jac, rejects
+    return t_mid, xp, pp, xf, pf, jac, rejects, jumps
 
 
 # forward freezes the code and constants (the state's slots) of every module of the model
 # into its machine code: numba's cache must be dropped when any of them changed
-drop_stale(forward, (sys.modules[__name__], _jit, linalg, ekf, measure, process, state, smoother))
+drop_stale(
+    forward, (sys.modules[__name__], _jit, linalg, ekf, jump, measure, process, state, smoother)
+)

@@ -66,6 +66,11 @@ class ModelParams:
     pitch_damping: float = 0.25  # ... and its damping ratio (0 < zeta < 1), 1
     compliance0_rad_per_mps2: float = 1.75e-3  # prior sigma of C (0.1 deg per m/s^2), rad/(m/s^2)
     compliance_mean_rad_per_mps2: float = 0.0  # prior mean of C, rad per m/s^2
+    # a vertical curve's start or end steps K by g / R (radius R); 0 = no jump test
+    curve_rate_step_per_m: float = 1.5e-3  # prior sigma of K's step, m/s^2 per m (g / 6.5 km)
+    curve_spacing_m: float = 300.0  # mean distance between K's steps along the line, m
+    curve_window_s: float = 2.0  # a step's onset is looked for this far back, s
+    curve_min_age_s: float = 1.0  # ... and at least this far (a body mode's period), s
 
     def array(self) -> np.ndarray:
         """The fields as a float64 array, in the order of the P_* indices below."""
@@ -97,8 +102,12 @@ class ModelParams:
     P_PZ,
     P_C0,
     P_CM,
-) = range(24)
-NP = 24
+    P_KJ,
+    P_KSP,
+    P_KWIN,
+    P_KMIN,
+) = range(28)
+NP = 28
 
 
 def initial(

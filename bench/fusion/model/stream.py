@@ -4,9 +4,10 @@
 :class:`~bench.fusion.model.log.ModelLog` does, and runs the forward pass
 (:func:`bench.fusion.model.run.forward`, the one kernel) over every block the pushes have
 completed. What it carries between pushes is everything the kernel would have held in its
-loop: x and P, the body's vibration learnt, the last block's mid-time, the samples of the
-block not yet complete and the SPEED_REF frames they are still to apply. So its blocks are
-the replay's blocks to the bit, whatever the cut (tests/test_model_stream.py).
+loop: x and P, the body's vibration learnt, the jump test's onset hypotheses, the last
+block's mid-time, the samples of the block not yet complete and the SPEED_REF frames they
+are still to apply. So its blocks are the replay's blocks to the bit, whatever the cut
+(tests/test_model_stream.py).
 
 :class:`FixedLag` keeps the last ``lag`` blocks' predicted and filtered (x, P) and, as each
 block arrives, smooths back over them (the RTS pass of :mod:`.smoother`): block k's
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bench.config import Config
-from bench.fusion.model import run, smoother, state
+from bench.fusion.model import jump, run, smoother, state
 from bench.fusion.model.log import (
     BLOCK_S,
     CHANNEL_GATE,
@@ -86,6 +87,7 @@ class ForwardStream:
         self.block = max(1, int(BLOCK_S * config.sample_rate_hz))
         self.x, self.p = state.initial(prm)
         self._vib = np.zeros(2)
+        self._glr = jump.hypotheses(prm, BLOCK_S)
         self._t_prev = 0.0
         self._first = True
         self.blocks = 0  # blocks completed so far
@@ -129,12 +131,12 @@ class ForwardStream:
         beyond = np.flatnonzero(fa >= upto)
         nf = int(beyond[0]) if len(beyond) else len(fa)
         take = tuple(c[:nf] for c in self._frames)
-        t_mid, xp, pp, xf, pf, jac, _ = run.forward(
+        t_mid, xp, pp, xf, pf, jac, _, _ = run.forward(
             self._b[:upto], self._y[:upto], self._used[:upto],
             take[0], take[1].astype(np.float64), take[2].astype(np.float64),
             take[3].astype(np.bool_), take[4].astype(np.bool_), np.ones(nf, np.bool_),
             self._cos, self._sin, self.prm, self.x, self.p, self.block,
-            ODOMETER_GATE, CHANNEL_GATE, self._vib, self._t_prev, self._first,
+            ODOMETER_GATE, CHANNEL_GATE, self._vib, self._glr, self._t_prev, self._first,
         )  # fmt: skip
         self._first = False
         self.x, self.p, self._t_prev = xf[-1], pf[-1], float(t_mid[-1])
